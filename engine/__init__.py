@@ -1,0 +1,1 @@
+"""bentray engine: media profiles, media meshes, analytic ray-curve kernels, orchestration."""

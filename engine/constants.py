@@ -1,0 +1,71 @@
+"""Named tolerances, status codes, boundary tags and numba flags, in one place.
+
+Every tolerance says why it has the value it has. Units: metres, seconds, m/s unless stated.
+"""
+
+from __future__ import annotations
+
+# ---------------------------------------------------------------------------------------------
+# Ray end states (int8 in kernels). Every ray ends with exactly one of these; the report counts them.
+# ---------------------------------------------------------------------------------------------
+STATUS_RUNNING = 0
+STATUS_TIME_LIMIT = 1  # reached exactly max_time_s of travel time (solved inside the last segment)
+STATUS_REFLECTION_LIMIT = 2  # hit a reflecting face after max_reflections reflections
+STATUS_EXITED = 3  # left the domain through an open face
+STATUS_STEP_LIMIT = 4  # used max_steps segment steps (reported, never silent)
+STATUS_LOST = 5  # no consistent exit after nudging, invalid media (n^2 <= 0, c <= 0) or NaN
+
+STATUS_NAMES = {
+    STATUS_RUNNING: "running",
+    STATUS_TIME_LIMIT: "time_limit",
+    STATUS_REFLECTION_LIMIT: "reflection_limit",
+    STATUS_EXITED: "exited",
+    STATUS_STEP_LIMIT: "step_limit",
+    STATUS_LOST: "lost",
+}
+
+# ---------------------------------------------------------------------------------------------
+# Boundary tags stored in CellMesh.neighbours where a face has no neighbouring cell.
+# Non-negative values are cell ids.
+# ---------------------------------------------------------------------------------------------
+BOUNDARY_OPEN = -1  # the ray leaves the domain (box sides, open top)
+BOUNDARY_REFLECT = -2  # ground, wall or reflecting top: specular reflection with the face normal
+FACE_UNUSED = -9  # padding slot in cells with fewer than MAX_FACES faces (never an exit)
+
+# ---------------------------------------------------------------------------------------------
+# Curve kinds (the quantity m each one needs the cell to be linear in)
+# ---------------------------------------------------------------------------------------------
+CURVE_PARABOLIC = 0  # m = n^2, constant grad(n^2)      (physics.md section 2)
+CURVE_CIRCULAR = 1  # m = c,   constant grad(c)         (physics.md section 3)
+CURVE_NLINEAR = 2  # m = n,   constant grad(n), bisection (physics.md section 4)
+
+CURVE_CODES = {"parabolic": CURVE_PARABOLIC, "circular": CURVE_CIRCULAR, "n_linear": CURVE_NLINEAR}
+CURVE_QUANTITY = {"parabolic": "n2", "circular": "c", "n_linear": "n"}
+
+# ---------------------------------------------------------------------------------------------
+# Tolerances
+# ---------------------------------------------------------------------------------------------
+# A point whose signed distance to a face plane exceeds -ON_FACE_REL * cell size counts as "on or
+# beyond" that face when the ray moves outward through it (immediate exit). 1e-12 of the cell size is
+# ~1e3 ulps of a coordinate at km scale relative to a metre-sized cell: large enough to absorb plane
+# rounding, small enough never to skip a real segment longer than a nanometre-per-metre.
+ON_FACE_REL = 1e-12
+# When a ray finds no exit (rounding at an edge or vertex), it is moved along its tangent by
+# NUDGE_REL * cell size and re-located by walking; such events are counted in the report.
+NUDGE_REL = 1e-9
+# Walking steps allowed for one re-location before the ray is declared lost.
+MAX_WALK = 64
+# Consecutive nudges allowed at one place before the ray is declared lost.
+MAX_NUDGES_IN_A_ROW = 8
+# Bisection iterations for the n-linear curve's plane intersections: 2^-60 of the bracket is below
+# float64 resolution of any bracket shorter than 1e3 cell sizes.
+NLINEAR_BISECTION_ITERS = 60
+# Newton iterations for inverting the cubic time equation t(sigma) = t_target inside one segment;
+# the iteration is safeguarded by a bracket and converges quadratically in 3-5 steps.
+TIME_SOLVE_ITERS = 50
+
+# ---------------------------------------------------------------------------------------------
+# Numba flags (cache=True needs a writable NUMBA_CACHE_DIR: set in bentray/__init__.py)
+# ---------------------------------------------------------------------------------------------
+NJIT_FLAGS = {"cache": True, "fastmath": False, "nogil": True}
+PARALLEL_FLAGS = {"cache": True, "fastmath": False, "nogil": True, "parallel": True}

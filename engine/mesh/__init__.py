@@ -1,0 +1,1 @@
+"""bentray media meshes: uniform box, stratified slabs, adaptive tetrahedra."""

@@ -1,0 +1,1 @@
+"""Job schema (pydantic), built-in scenes and example jobs."""
