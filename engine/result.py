@@ -1,0 +1,82 @@
+"""Result containers handed from the engine to the writers (plain numpy, no pydantic)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from bentray.engine.constants import STATUS_NAMES
+
+
+@dataclass
+class RayPaths:
+    """Polylines sampled on the true ray curves (not chords of long segments).
+
+    offsets : (n_rays + 1,) int64 -- points of ray i are ``points[offsets[i]:offsets[i+1]]``.
+    points : (M, 3) float64, metres, world frame.
+    time_s : (M,) float64, travel time at each sample.
+    length_m : (M,) float64, arc length at each sample.
+    """
+
+    offsets: np.ndarray
+    points: np.ndarray
+    time_s: np.ndarray
+    length_m: np.ndarray
+
+
+@dataclass
+class TraceResult:
+    """Final state of every ray of a job (one row per ray), plus optional sampled paths.
+
+    source : (n,) int64 source index; elevation_deg, azimuth_deg : (n,) launch angles in degrees
+    (elevation above the horizontal, azimuth counter-clockwise from +x).
+    position : (n, 3) metres; direction : (n, 3) unit tangent; time_s, length_m : (n,);
+    reflections : (n,) int64; status : (n,) int8 (codes in constants.STATUS_NAMES);
+    crossings : (n,) int64 cell-to-cell steps; nudges : (n,) int64 re-locations after rounding.
+    """
+
+    source: np.ndarray
+    elevation_deg: np.ndarray
+    azimuth_deg: np.ndarray
+    position: np.ndarray
+    direction: np.ndarray
+    time_s: np.ndarray
+    length_m: np.ndarray
+    reflections: np.ndarray
+    status: np.ndarray
+    crossings: np.ndarray
+    nudges: np.ndarray
+    paths: RayPaths | None = None
+
+    @property
+    def n_rays(self) -> int:
+        return int(self.status.shape[0])
+
+    def status_counts(self) -> dict[str, int]:
+        """Rays by end status; every status name is present (zero counts included)."""
+        return {name: int(np.count_nonzero(self.status == code)) for code, name in STATUS_NAMES.items()}
+
+
+@dataclass
+class MeshGeometry:
+    """Cell geometry for mesh.vtu: points and cells of one VTK cell type.
+
+    points : (P, 3) metres; connectivity : (C, k) int64; cell_type : "tetra" (k=4) or "hexahedron"
+    (k=8, VTK ordering); cell_data : arrays of length C (e.g. the traced quantity and its gradient).
+    """
+
+    points: np.ndarray
+    connectivity: np.ndarray
+    cell_type: str
+    cell_data: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+@dataclass
+class JobOutcome:
+    """Everything a job produced, before writing."""
+
+    trace: TraceResult
+    mesh_geometry: MeshGeometry | None
+    report: dict[str, Any]
