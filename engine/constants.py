@@ -67,5 +67,7 @@ TIME_SOLVE_ITERS = 50
 # ---------------------------------------------------------------------------------------------
 # Numba flags (cache=True needs a writable NUMBA_CACHE_DIR: set in bentray/__init__.py)
 # ---------------------------------------------------------------------------------------------
-NJIT_FLAGS = {"cache": True, "fastmath": False, "nogil": True}
-PARALLEL_FLAGS = {"cache": True, "fastmath": False, "nogil": True, "parallel": True}
+# error_model="numpy": float division by zero gives inf/nan (checked explicitly) instead of raising,
+# which also lets numba drop the per-division zero checks in the hot loops.
+NJIT_FLAGS = {"cache": True, "fastmath": False, "nogil": True, "error_model": "numpy"}
+PARALLEL_FLAGS = {"cache": True, "fastmath": False, "nogil": True, "error_model": "numpy", "parallel": True}

@@ -49,6 +49,7 @@ class TraceResult:
     crossings: np.ndarray
     nudges: np.ndarray
     paths: RayPaths | None = None
+    steps: np.ndarray | None = None  # (n,) int64 curve segments per ray (cells entered + reflections)
 
     @property
     def n_rays(self) -> int:

@@ -1,0 +1,158 @@
+"""The ``bentray`` command line.
+
+    bentray run JOB.json --out DIR [--threads N]
+
+Exit status: 0 success; 2 invalid command line or job file (unreadable, invalid JSON or schema
+errors, printed one ``field.path: reason`` per line on stderr); 1 any other error during the run
+(one line on stderr; ``--traceback`` shows the full traceback instead).
+
+Subcommands register themselves in :data:`COMMANDS` (more to come: scenes, bench, serve, submit).
+Heavy imports (the engine, numba, pyvista) happen inside the command that needs them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+from bentray.engine.errors import BentrayError
+
+import bentray
+
+# Errors reported as one line with exit status 1: bentray's own (engine/errors.py) and the usual
+# input/resource failures. Anything else is a bug and keeps its traceback.
+_RUN_ERRORS: tuple[type[BaseException], ...] = (BentrayError, ValueError, OSError, RuntimeError, MemoryError)
+
+
+class CommandError(Exception):
+    """A user-facing failure of a command: printed as one line, exit status ``code``."""
+
+    def __init__(self, message: str, code: int = 1) -> None:
+        super().__init__(message)
+        self.code = code
+
+
+# ---------------------------------------------------------------------------------------------
+# bentray run
+# ---------------------------------------------------------------------------------------------
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
+def _set_threads(n: int) -> None:
+    import numba
+
+    available = numba.config.NUMBA_NUM_THREADS
+    if n > available:
+        raise CommandError(f"--threads {n} exceeds the {available} threads numba can use", code=2)
+    numba.set_num_threads(n)
+
+
+def _load(job_path: Path):
+    from bentray.scenes.schema import JobFileError, format_validation_error, load_job
+    from pydantic import ValidationError
+
+    try:
+        return load_job(job_path)
+    except JobFileError as exc:
+        raise CommandError(str(exc), code=2) from None
+    except ValidationError as exc:
+        raise CommandError(
+            f"{job_path}: invalid job ({exc.error_count()} error(s)):\n{format_validation_error(exc)}", code=2
+        ) from None
+
+
+def _summary(job, outcome, written: list[Path], wall_s: float) -> str:
+    trace = outcome.trace
+    lines = [f"job {job.name}: {trace.n_rays} rays in {wall_s:.2f} s"]
+    counts = {name: n for name, n in trace.status_counts().items() if n}
+    lines.append("  rays by status: " + (", ".join(f"{k} {v}" for k, v in counts.items()) or "none"))
+    timings = outcome.report.get("timings_s") or {}
+    if timings:
+        parts = []
+        for stage, seconds in timings.items():
+            try:
+                parts.append(f"{stage} {float(seconds):.3f}")
+            except (TypeError, ValueError):
+                parts.append(f"{stage} {seconds}")
+        lines.append("  timings (s): " + ", ".join(parts))
+    lines.append("  wrote: " + (", ".join(str(p) for p in written) or "nothing"))
+    return "\n".join(lines)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    job_path = Path(args.job)
+    job = _load(job_path)
+    out_dir = Path(args.out)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise CommandError(f"--out {out_dir} exists and is not a directory", code=2)
+    if args.threads is not None:
+        _set_threads(args.threads)
+
+    from bentray.engine.run import run_job
+    from bentray.engine.writers import write_outcome
+
+    t0 = time.perf_counter()
+    outcome = run_job(job, job_path.absolute().parent)
+    written = write_outcome(outcome, list(job.outputs), out_dir)
+    print(_summary(job, outcome, written, time.perf_counter() - t0))
+    return 0
+
+
+def _add_run(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("run", help="trace one job file and write its outputs", description="Trace one job.")
+    p.add_argument("job", help="job file (JSON, see scenes/examples/)")
+    p.add_argument("--out", required=True, help="output directory (created; files replaced all-or-nothing)")
+    p.add_argument("--threads", type=_positive_int, default=None, help="numba threads (default: all)")
+    p.set_defaults(func=cmd_run)
+
+
+# Each entry adds one subcommand parser (with set_defaults(func=handler)).
+COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_run]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="bentray", description="Outdoor-acoustics curved-ray engine.")
+    parser.add_argument("--version", action="version", version=f"bentray {bentray.__version__}")
+    parser.add_argument("--traceback", action="store_true", help="show full tracebacks on errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for add in COMMANDS:
+        add(sub)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if getattr(args, "func", None) is None:
+        parser.print_help(sys.stderr)
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except CommandError as exc:
+        if args.traceback:
+            raise
+        print(f"bentray {args.command}: error: {exc}", file=sys.stderr)
+        return exc.code
+    except _RUN_ERRORS as exc:
+        if args.traceback:
+            raise
+        message = " ".join(str(exc).split()) or type(exc).__name__
+        print(f"bentray {args.command}: error: {type(exc).__name__}: {message}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"bentray {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

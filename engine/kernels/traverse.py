@@ -1,0 +1,306 @@
+"""Algorithm 1 of the paper: analytic ray curves walked cell by cell, parallel over rays.
+
+Per cell: build the curve from the cell's linear media model at the entry point, take the first
+exit among the face planes (closed form, or bisection for n-linear), then step into the neighbour
+across the exit face, reflect specularly off a reflecting face (T' = T - 2 (T.m) m), or stop at an
+open face. A ray stops at exactly ``max_time`` (time equation solved inside the last segment), at a
+reflecting face after ``max_reflections`` reflections, at an open face, after ``max_steps`` steps,
+or as lost (unphysical media, no consistent exit after nudging, non-finite state). The end state is
+an integer status; the Python wrapper turns it into counts (constants.STATUS_NAMES).
+
+Robustness (physics.md section 5): the entry face uses the exact zero constant term; points on or
+beyond a face moving outward exit at once (edges and vertices are walked through with zero-length
+steps); a ray that finds no exit, or that makes too many zero-length steps in a row, is nudged along
+its tangent by NUDGE_REL x cell size and re-located by walking. Nudges are counted per ray.
+
+Optional path recording samples points on the true curves at about every ``dt_sample`` seconds
+(interior samples of long segments are evaluated on the curve, not interpolated), plus every
+reflection and the end point, into a fixed per-ray slice of the output buffers.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from bentray.engine.constants import (
+    BOUNDARY_OPEN,
+    BOUNDARY_REFLECT,
+    CURVE_CIRCULAR,
+    CURVE_PARABOLIC,
+    FACE_UNUSED,
+    MAX_NUDGES_IN_A_ROW,
+    MAX_WALK,
+    NJIT_FLAGS,
+    NUDGE_REL,
+    ON_FACE_REL,
+    PARALLEL_FLAGS,
+    STATUS_EXITED,
+    STATUS_LOST,
+    STATUS_REFLECTION_LIMIT,
+    STATUS_RUNNING,
+    STATUS_STEP_LIMIT,
+    STATUS_TIME_LIMIT,
+)
+from bentray.engine.kernels import curves
+
+# Zero-length steps in a row (edge/vertex walks) before the ray is nudged: a walk around one edge
+# of a Delaunay mesh visits at most a few dozen cells.
+MAX_ZERO_STEPS = 64
+
+
+@nb.njit(**NJIT_FLAGS)
+def _media_at(media_ref, ref_point, gradient, cell, x):
+    return (
+        media_ref[cell]
+        + gradient[cell, 0] * (x[0] - ref_point[cell, 0])
+        + gradient[cell, 1] * (x[1] - ref_point[cell, 1])
+        + gradient[cell, 2] * (x[2] - ref_point[cell, 2])
+    )
+
+
+@nb.njit(**NJIT_FLAGS)
+def _slowness(curve, m0, c_ref):
+    """1/c (s/m) from the traced quantity m0 (n^2, c or n)."""
+    if curve == CURVE_PARABOLIC:
+        return math.sqrt(m0) / c_ref
+    if curve == CURVE_CIRCULAR:
+        return 1.0 / m0
+    return m0 / c_ref
+
+
+@nb.njit(**NJIT_FLAGS)
+def _walk(planes, neighbours, cell, x):
+    """Re-locate x by walking from ``cell`` toward the most violated face.
+
+    Returns (cell, outcome): outcome 0 = inside, 1 = beyond an open boundary, 2 = beyond a
+    reflecting boundary (x is then projected back onto that plane), 3 = walk did not converge.
+    """
+    for _ in range(MAX_WALK):
+        worst = 0.0
+        worst_face = -1
+        for f in range(planes.shape[1]):
+            if neighbours[cell, f] == FACE_UNUSED:
+                continue
+            d = planes[cell, f, 0] * x[0] + planes[cell, f, 1] * x[1] + planes[cell, f, 2] * x[2]
+            d -= planes[cell, f, 3]
+            if d > worst:
+                worst = d
+                worst_face = f
+        if worst_face < 0:
+            return cell, 0
+        nxt = neighbours[cell, worst_face]
+        if nxt >= 0:
+            cell = nxt
+            continue
+        if nxt == BOUNDARY_OPEN:
+            return cell, 1
+        for i in range(3):
+            x[i] -= worst * planes[cell, worst_face, i]
+        return cell, 2
+    return cell, 3
+
+
+@nb.njit(**NJIT_FLAGS)
+def _emit(path_pts, path_t, path_s, base, cap, count, x, t, s):
+    if count < cap:
+        k = base + count
+        path_pts[k, 0] = x[0]
+        path_pts[k, 1] = x[1]
+        path_pts[k, 2] = x[2]
+        path_t[k] = t
+        path_s[k] = s
+        return count + 1
+    return count
+
+
+@nb.njit(**NJIT_FLAGS)
+def _emit_segment(curve, cs, x0, d0, param_end, t0, s0, t_end, c_ref, t_last, dt_sample,
+                  path_pts, path_t, path_s, base, cap, count, xs, ts):
+    """Interior samples of a segment spanning more than dt_sample (evaluated on the curve)."""
+    n_int = int((t_end - t0) / dt_sample)
+    if n_int > 2 * cap:
+        n_int = 2 * cap
+    for j in range(1, n_int + 1):
+        prm = param_end * j / (n_int + 1)
+        ds = curves.evaluate(curve, cs, x0, d0, prm, xs, ts)
+        tt = t0 + curves.time_at(curve, cs, prm, c_ref)
+        count = _emit(path_pts, path_t, path_s, base, cap, count, xs, tt, s0 + ds)
+        t_last = tt
+    return count, t_last
+
+
+@nb.njit(**NJIT_FLAGS)
+def trace_one(
+    planes, neighbours, neighbour_face, media_ref, ref_point, gradient, size,
+    curve, c_ref, x_start, d_start, cell_start, max_time, max_reflections, max_steps,
+    record, dt_sample, path_pts, path_t, path_s, path_base, path_cap,
+    out_state, out_counts,
+):
+    """Trace one ray. out_state (8,): x, y, z, dx, dy, dz, time_s, length_m.
+
+    out_counts (6,): status, reflections, crossings, nudges, steps, path samples.
+    """
+    x = x_start.copy()
+    d = d_start.copy()
+    norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    for i in range(3):
+        d[i] /= norm
+    xn = np.empty(3)
+    dn = np.empty(3)
+    xs = np.empty(3)
+    ts = np.empty(3)
+    cs = np.zeros(curves.CS_SIZE)
+    t = 0.0
+    s = 0.0
+    cell = cell_start
+    entry = -1
+    reflections = 0
+    crossings = 0
+    nudges = 0
+    nudge_run = 0
+    zero_run = 0
+    steps = 0
+    status = STATUS_RUNNING
+    count = 0
+    t_last = 0.0
+    if record:
+        count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
+    if cell < 0:
+        status = STATUS_LOST
+    while status == STATUS_RUNNING:
+        if steps >= max_steps:
+            status = STATUS_STEP_LIMIT
+            break
+        steps += 1
+        m0 = _media_at(media_ref, ref_point, gradient, cell, x)
+        if not curves.setup(curve, m0, gradient[cell], d, cs):
+            status = STATUS_LOST
+            break
+        cell_size = size[cell]
+        face, param = curves.find_exit(
+            curve, cs, x, d, planes[cell], neighbours[cell], entry, ON_FACE_REL * cell_size, cell_size
+        )
+        if face < 0:
+            param = curves.interior_step(curve, cs)  # circular: a quarter turn inside the cell
+        if param == 0.0:
+            zero_run += 1
+        else:
+            zero_run = 0
+        if (face < 0 and not math.isfinite(param)) or zero_run > MAX_ZERO_STEPS:
+            # rounding at an edge or vertex left no consistent exit: nudge and re-locate
+            nudges += 1
+            nudge_run += 1
+            zero_run = 0
+            if nudge_run > MAX_NUDGES_IN_A_ROW:
+                status = STATUS_LOST
+                break
+            eta = NUDGE_REL * cell_size
+            for i in range(3):
+                x[i] += eta * d[i]
+            t += eta * _slowness(curve, m0, c_ref)
+            s += eta
+            cell, outcome = _walk(planes, neighbours, cell, x)
+            entry = -1
+            if outcome == 1:
+                status = STATUS_EXITED
+            elif outcome == 3:
+                status = STATUS_LOST
+            continue
+        dt = curves.time_at(curve, cs, param, c_ref)
+        if not (dt >= 0.0):
+            status = STATUS_LOST
+            break
+        if t + dt >= max_time:
+            param_end = curves.param_at_time(curve, cs, max_time - t, param, c_ref)
+            ds = curves.evaluate(curve, cs, x, d, param_end, xn, dn)
+            if record and max_time - t > dt_sample:
+                count, t_last = _emit_segment(curve, cs, x, d, param_end, t, s, max_time, c_ref, t_last,
+                                              dt_sample, path_pts, path_t, path_s, path_base, path_cap,
+                                              count, xs, ts)
+            for i in range(3):
+                x[i] = xn[i]
+                d[i] = dn[i]
+            t = max_time
+            s += ds
+            status = STATUS_TIME_LIMIT
+            break
+        ds = curves.evaluate(curve, cs, x, d, param, xn, dn)
+        if record:
+            if dt > dt_sample:
+                count, t_last = _emit_segment(curve, cs, x, d, param, t, s, t + dt, c_ref, t_last,
+                                              dt_sample, path_pts, path_t, path_s, path_base, path_cap,
+                                              count, xs, ts)
+        for i in range(3):
+            x[i] = xn[i]
+            d[i] = dn[i]
+        t += dt
+        s += ds
+        if not (math.isfinite(x[0]) and math.isfinite(x[1]) and math.isfinite(x[2])):
+            status = STATUS_LOST
+            break
+        if record and t - t_last >= dt_sample:
+            count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
+            t_last = t
+        if param > 0.0:
+            nudge_run = 0
+        if face < 0:
+            entry = -1  # within-cell step (circular quarter turn): same cell, no entry face
+            continue
+        nxt = neighbours[cell, face]
+        if nxt >= 0:
+            entry = neighbour_face[cell, face]
+            cell = nxt
+            crossings += 1
+        elif nxt == BOUNDARY_REFLECT:
+            if reflections >= max_reflections:
+                status = STATUS_REFLECTION_LIMIT
+                break
+            dot = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
+            for i in range(3):
+                d[i] -= 2.0 * dot * planes[cell, face, i]
+            norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+            for i in range(3):
+                d[i] /= norm
+            reflections += 1
+            entry = face
+            if record and t > t_last:
+                count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
+                t_last = t
+        else:
+            status = STATUS_EXITED
+            break
+    if record and (count == 0 or t > t_last):
+        count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
+    for i in range(3):
+        out_state[i] = x[i]
+        out_state[3 + i] = d[i]
+    out_state[6] = t
+    out_state[7] = s
+    out_counts[0] = status
+    out_counts[1] = reflections
+    out_counts[2] = crossings
+    out_counts[3] = nudges
+    out_counts[4] = steps
+    out_counts[5] = count
+
+
+@nb.njit(**PARALLEL_FLAGS)
+def trace_rays(
+    planes, neighbours, neighbour_face, media_ref, ref_point, gradient, size,
+    curve, c_ref, origins, directions, start_cells, max_time, max_reflections, max_steps,
+    record, dt_sample, path_cap, path_pts, path_t, path_s,
+    out_state, out_counts,
+):
+    """Trace all rays in parallel (prange). Ray i owns out_state[i], out_counts[i] and the path slice
+    ``[i * path_cap, (i + 1) * path_cap)``: no shared writes, deterministic results."""
+    n = origins.shape[0]
+    for i in nb.prange(n):
+        trace_one(
+            planes, neighbours, neighbour_face, media_ref, ref_point, gradient, size,
+            curve, c_ref, origins[i], directions[i], start_cells[i], max_time, max_reflections, max_steps,
+            record, dt_sample, path_pts, path_t, path_s, i * path_cap, path_cap,
+            out_state[i], out_counts[i],
+        )

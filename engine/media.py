@@ -1,0 +1,204 @@
+"""Choose and build the media representation a job needs (and nothing more).
+
+- homogeneous profile                      -> ``uniform``: one box cell, straight rays, no mesh build
+- stratified profile (c depends on z only) -> ``slabs``: horizontal layers graded by the sizing rule
+- anything else (hot spot, fluctuations, 3D grids) -> ``tets``: Algorithm 2 + Delaunay tetrahedra
+
+``solver.representation`` may force one (a benchmark of tets on a stratified profile, say); forcing
+``uniform`` or ``slabs`` on a profile that varies horizontally is refused, because it would silently
+trace a different medium.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from bentray.engine.constants import CURVE_QUANTITY
+from bentray.engine.errors import JobInputError
+from bentray.engine.mesh.cells import CellMesh, locate_points
+from bentray.engine.mesh.sizing import curvature_layers, gradient_layers, relative_error_1d, spacing_function
+from bentray.engine.mesh.slabs import build_slab_mesh, locate_in_slabs, slab_geometry
+from bentray.engine.profiles import Profile
+from bentray.engine.result import MeshGeometry
+
+# Defaults chosen by measurement (README, "Accuracy against cost"): on A-LD (log profile, b = +1,
+# 91 rays, 10 s) delta = 1e-8 gives ~2,300 layers and 1.4e-6 relative position error; 1e-6 gives
+# 231 layers and 2e-5. Slabs are cheap, so the default buys the accuracy.
+DEFAULT_SLAB_DELTA = 1e-8
+# Smallest layer: 10 micrometres resolves z_g = 0.01 m log profiles at the default delta.
+DEFAULT_SLAB_D_MIN = 1e-5
+# 3D meshes pay per point in all three directions: a looser default and bounded spacings.
+DEFAULT_TET_DELTA = 1e-4
+DEFAULT_TET_D_MIN_FRACTION = 1.0 / 200.0  # of the largest domain extent
+DEFAULT_TET_D_MAX_FRACTION = 1.0 / 8.0
+
+
+@dataclass
+class Media:
+    """A built media representation and what the report says about it."""
+
+    representation: str
+    reason: str
+    quantity: str
+    mesh: CellMesh
+    locate: Callable[[np.ndarray], np.ndarray]
+    geometry: Callable[[], MeshGeometry]
+    stats: dict[str, Any] = field(default_factory=dict)
+
+
+def choose_representation(profile: Profile, requested: str) -> tuple[str, str]:
+    """(representation, reason) for a profile and the job's ``solver.representation``."""
+    horizontal = not profile.stratified
+    if requested != "auto":
+        if requested in ("uniform", "slabs") and horizontal:
+            raise JobInputError(
+                f"solver.representation: {requested!r} needs a stratified profile, but profile kind "
+                f"{profile.kind!r} varies horizontally; use 'tets' or 'auto'"
+            )
+        if requested == "uniform" and profile.kind != "homogeneous":
+            raise JobInputError(
+                f"solver.representation: 'uniform' is only exact for a homogeneous profile, not {profile.kind!r}"
+            )
+        return requested, "requested by solver.representation"
+    if profile.kind == "homogeneous":
+        return "uniform", "homogeneous medium: one cell, straight rays, no media mesh"
+    if not horizontal:
+        return "slabs", "stratified profile over flat ground: horizontal layers, no 3D mesh"
+    return "tets", f"profile {profile.kind!r} varies in 3D: adaptive tetrahedral mesh (Algorithm 2 + Delaunay)"
+
+
+def _sizing_params(solver: Any, representation: str, extent: float) -> tuple[str, float, float, float]:
+    rule = solver.effective_sizing
+    if rule == "gradient":
+        tol = solver.epsilon if solver.epsilon is not None else 1e-3
+    elif representation == "tets":
+        tol = solver.delta if solver.delta is not None else DEFAULT_TET_DELTA
+    else:
+        tol = solver.delta if solver.delta is not None else DEFAULT_SLAB_DELTA
+    if representation == "tets":
+        d_min = solver.d_min_m if solver.d_min_m is not None else extent * DEFAULT_TET_D_MIN_FRACTION
+        d_max = solver.d_max_m if solver.d_max_m is not None else extent * DEFAULT_TET_D_MAX_FRACTION
+    else:
+        d_min = solver.d_min_m if solver.d_min_m is not None else DEFAULT_SLAB_D_MIN
+        d_max = solver.d_max_m if solver.d_max_m is not None else extent
+    if d_min > d_max:
+        raise JobInputError(f"solver.d_min_m ({d_min}) is larger than solver.d_max_m ({d_max})")
+    return rule, float(tol), float(d_min), float(d_max)
+
+
+def _n_from_quantity(quantity: str) -> Callable[[np.ndarray], np.ndarray]:
+    if quantity == "n2":
+        return np.sqrt
+    if quantity == "c":
+        return lambda m: 340.0 / m  # c_ref cancels in the relative error of Eq. 14
+    return lambda m: m
+
+
+def build_media(
+    profile: Profile,
+    curve: str,
+    solver: Any,
+    domain_min: np.ndarray,
+    domain_max: np.ndarray,
+    *,
+    ground: str = "reflect",
+    top: str = "open",
+) -> Media:
+    """Build the representation the job needs for the traced quantity of ``curve``."""
+    lo = np.asarray(domain_min, float)
+    hi = np.asarray(domain_max, float)
+    quantity = CURVE_QUANTITY[curve]
+    representation, reason = choose_representation(profile, solver.representation)
+    extent = float(np.max(hi - lo))
+    t0 = time.perf_counter()
+    if representation in ("uniform", "slabs"):
+        centre = 0.5 * (lo + hi)
+
+        def m_at_z(z: np.ndarray) -> np.ndarray:
+            z = np.atleast_1d(np.asarray(z, float))
+            pts = np.column_stack([np.full(len(z), centre[0]), np.full(len(z), centre[1]), z])
+            return profile.quantity(quantity, pts)
+
+        stats: dict[str, Any] = {}
+        if representation == "uniform":
+            z_levels = np.array([lo[2], hi[2]])
+        else:
+            rule, tol, d_min, d_max = _sizing_params(solver, "slabs", hi[2] - lo[2])
+            if rule == "gradient":
+                n_at_z = lambda z: profile.quantity("n", np.column_stack(  # noqa: E731
+                    [np.full(len(z), centre[0]), np.full(len(z), centre[1]), z]))
+                z_levels = gradient_layers(lo[2], hi[2], n_at_z, epsilon=tol, d_min=d_min, d_max=d_max)
+            else:
+                z_levels = curvature_layers(lo[2], hi[2], m_at_z, delta=tol, d_min=d_min, d_max=d_max)
+            stats.update({"sizing_rule": rule, "tolerance": tol, "d_min_m": d_min, "d_max_m": d_max})
+        mesh = build_slab_mesh(lo, hi, z_levels, m_at_z, ground=ground, top=top)
+        thickness = np.diff(z_levels)
+        stats.update({
+            "cells": int(len(thickness)),
+            "points": int(4 * len(z_levels)),
+            "layers": int(len(thickness)),
+            "min_cell_size_m": float(thickness.min()),
+            "median_cell_size_m": float(np.median(thickness)),
+            "max_cell_size_m": float(thickness.max()),
+            "build_time_s": time.perf_counter() - t0,
+        })
+        if representation == "slabs":
+            stats["approximation_error_eq14"] = relative_error_1d(z_levels, m_at_z, _n_from_quantity(quantity))
+        return Media(
+            representation=representation,
+            reason=reason,
+            quantity=quantity,
+            mesh=mesh,
+            locate=lambda xyz: locate_in_slabs(z_levels, xyz),
+            geometry=lambda: slab_geometry(lo, hi, mesh, z_levels, quantity),
+            stats=stats,
+        )
+    return _build_tets(profile, quantity, solver, lo, hi, representation, reason, ground, top, extent, t0)
+
+
+def _build_tets(profile, quantity, solver, lo, hi, representation, reason, ground, top, extent, t0) -> Media:
+    from bentray.engine.mesh.fcc import fcc_resample
+    from bentray.engine.mesh.tets import approximation_error, build_tet_mesh
+
+    rule, tol, d_min, d_max = _sizing_params(solver, "tets", extent)
+    spacing = spacing_function(
+        lambda p: profile.quantity(quantity, p),
+        lambda p: profile.quantity_gradient(quantity, p),
+        profile.refractive_index_gradient,
+        rule=rule,
+        tolerance=tol,
+        d_min=d_min,
+        d_max=d_max,
+    )
+    points = fcc_resample(lo, hi, spacing, d_min=d_min, d_max=d_max)
+    tet = build_tet_mesh(
+        lo, hi, points, lambda p: profile.quantity(quantity, p), spacing=spacing,
+        ground=ground, top=top, gradient_method=solver.gradient,
+    )
+    stats = dict(tet.stats)
+    stats.update({"sizing_rule": rule, "tolerance": tol, "d_min_m": d_min, "d_max_m": d_max})
+    stats["build_time_s"] = time.perf_counter() - t0
+    # Eq. 14 on an input grid of about 40^3 points spanning the domain
+    axes = [np.linspace(lo[i], hi[i], 40) for i in range(3)]
+    grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
+    stats["approximation_error_eq14"] = approximation_error(tet, grid, profile.quantity(quantity, grid))
+    mesh = tet.cells
+    return Media(
+        representation=representation,
+        reason=reason,
+        quantity=quantity,
+        mesh=mesh,
+        locate=lambda xyz: locate_points(mesh, xyz),
+        geometry=lambda: MeshGeometry(
+            points=tet.points,
+            connectivity=tet.tets,
+            cell_type="tetra",
+            cell_data={quantity: mesh.media_ref.copy(), f"grad_{quantity}": mesh.gradient.copy()},
+        ),
+        stats=stats,
+    )

@@ -1,0 +1,85 @@
+"""Python wrapper around the traversal kernel: validates inputs, allocates outputs, decodes states."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from bentray.engine.constants import CURVE_CODES
+from bentray.engine.kernels.traverse import trace_rays
+from bentray.engine.mesh.cells import CellMesh
+from bentray.engine.result import RayPaths, TraceResult
+
+
+def path_capacity(path_samples: int, max_reflections: int) -> int:
+    """Per-ray sample slots: time samples (each long segment may add one extra), reflections, ends."""
+    return 2 * int(path_samples) + min(int(max_reflections), 10_000) + 8
+
+
+def trace(
+    mesh: CellMesh,
+    curve: str,
+    c_ref: float,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    start_cells: np.ndarray,
+    *,
+    max_time_s: float,
+    max_reflections: int,
+    max_steps: int = 10_000_000,
+    path_samples: int = 0,
+) -> TraceResult:
+    """Trace rays through ``mesh`` with the given curve kind.
+
+    origins, directions : (n, 3) float64, metres / unit vectors, world frame.
+    start_cells : (n,) int64 cell containing each origin (-1: not in the mesh -> status lost).
+    path_samples : samples per ray for rays.vtp (0: no path recording, no path buffers).
+    Returns a TraceResult with launch angles left at NaN (the caller fills them in).
+    """
+    if curve not in CURVE_CODES:
+        raise ValueError(f"unknown curve {curve!r}; expected one of {sorted(CURVE_CODES)}")
+    origins = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3)
+    directions = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
+    start_cells = np.ascontiguousarray(start_cells, dtype=np.int64).reshape(-1)
+    n = origins.shape[0]
+    if directions.shape[0] != n or start_cells.shape[0] != n:
+        raise ValueError("origins, directions and start_cells must have the same length")
+    if not (max_time_s > 0.0):
+        raise ValueError("max_time_s must be positive")
+    record = path_samples > 0
+    cap = path_capacity(path_samples, max_reflections) if record else 1
+    n_slots = n * cap if record else 1
+    path_pts = np.zeros((n_slots, 3))
+    path_t = np.zeros(n_slots)
+    path_s = np.zeros(n_slots)
+    dt_sample = max_time_s / max(path_samples, 1)
+    out_state = np.zeros((n, 8))
+    out_counts = np.zeros((n, 6), dtype=np.int64)
+    trace_rays(
+        mesh.planes, mesh.neighbours, mesh.neighbour_face, mesh.media_ref, mesh.ref_point,
+        mesh.gradient, mesh.size, CURVE_CODES[curve], float(c_ref), origins, directions, start_cells,
+        float(max_time_s), int(max_reflections), int(max_steps), record, float(dt_sample), cap,
+        path_pts, path_t, path_s, out_state, out_counts,
+    )
+    paths = None
+    if record:
+        counts = out_counts[:, 5]
+        offsets = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(counts, out=offsets[1:])
+        keep = (np.arange(cap)[None, :] < counts[:, None]).reshape(-1)
+        paths = RayPaths(offsets=offsets, points=path_pts[keep], time_s=path_t[keep], length_m=path_s[keep])
+    nan = np.full(n, np.nan)
+    return TraceResult(
+        source=np.zeros(n, dtype=np.int64),
+        elevation_deg=nan.copy(),
+        azimuth_deg=nan.copy(),
+        position=out_state[:, 0:3].copy(),
+        direction=out_state[:, 3:6].copy(),
+        time_s=out_state[:, 6].copy(),
+        length_m=out_state[:, 7].copy(),
+        reflections=out_counts[:, 1].copy(),
+        status=out_counts[:, 0].astype(np.int8),
+        crossings=out_counts[:, 2].copy(),
+        nudges=out_counts[:, 3].copy(),
+        paths=paths,
+        steps=out_counts[:, 4].copy(),
+    )

@@ -1,0 +1,434 @@
+"""The job contract: one pydantic v2 model tree for a ray-tracing job (file, CLI and HTTP alike).
+
+Units: metres, seconds, degrees (angles carry ``_deg``), Pa s/m^2 for flow resistivity.
+Every model forbids unknown keys and rejects NaN/inf. Validators only check; they never rewrite
+input values (derived values are properties, e.g. :attr:`Solver.effective_sizing`).
+
+Entry points: :func:`load_job` (JSON file -> :class:`Job`), :func:`parse_job_text` (JSON text -> Job)
+and :func:`format_validation_error` (pydantic error -> ``field.path: reason`` lines, the text of the
+CLI's exit-2 message and of the service's HTTP 422 body).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+from bentray.engine.errors import BentrayError
+from bentray.scenes.profile_models import ProfileSpec
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    field_serializer,
+    field_validator,
+    model_validator,
+)
+from pydantic_core import PydanticCustomError
+
+__all__ = [
+    "BUILTIN_SCENES",
+    "MAX_TOTAL_RAYS",
+    "AngleRange",
+    "Domain",
+    "ElevationRange",
+    "Ground",
+    "Job",
+    "JobFileError",
+    "Rays",
+    "Scene",
+    "Solver",
+    "Source",
+    "Top",
+    "format_validation_error",
+    "load_job",
+    "parse_job_text",
+]
+
+# Limits (each one says what it protects against).
+MAX_DOMAIN_EXTENT_M = 1.0e6  # 1000 km: beyond any outdoor-acoustics scene; catches unit mistakes (mm, km)
+MIN_DOMAIN_EXTENT_M = 1.0e-3  # 1 mm: a thinner box cannot be meshed meaningfully
+MAX_TOTAL_RAYS = 10_000_000  # sources x elevations x azimuths; keeps one job's arrays to a few GB
+MAX_SOURCES = 10_000
+MAX_TIME_S = 3600.0
+MAX_REFLECTIONS = 100_000
+BUILTIN_SCENES: tuple[str, ...] = ("flat",)  # more built-in scenes come later
+_NAME_RE = r"^[A-Za-z0-9._-]{1,100}$"
+
+
+class JobFileError(BentrayError, ValueError):
+    """A job file that cannot be read or is not valid JSON (schema errors raise ValidationError)."""
+
+
+def _fail(errors: list[tuple[tuple[str | int, ...], str, Any]], title: str) -> None:
+    """Raise a ValidationError whose entries sit at the given field locations (relative to the model).
+
+    Raised inside a validator, pydantic prefixes the locations with the model's own location, so
+    ``sources.0.position`` checked in :class:`Job` still names the offending field.
+    """
+    line_errors = [
+        {
+            "type": PydanticCustomError("value_error", "{reason}", {"reason": reason}),
+            "loc": loc,
+            "input": value,
+        }
+        for loc, reason, value in errors
+    ]
+    raise ValidationError.from_exception_data(title=title, line_errors=line_errors)
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+Vec3 = tuple[float, float, float]
+_AXES = ("x", "y", "z")
+
+
+# ---------------------------------------------------------------------------------------------
+# Scene
+# ---------------------------------------------------------------------------------------------
+class Domain(_Model):
+    """Axis-aligned box ``[min, max]`` in metres; z is up and ``min[2]`` is the flat ground height."""
+
+    min: Vec3
+    max: Vec3
+
+    @model_validator(mode="after")
+    def _check_box(self) -> Domain:
+        errors = []
+        for axis, (lo, hi) in enumerate(zip(self.min, self.max, strict=True)):
+            name = _AXES[axis]
+            extent = hi - lo
+            if hi <= lo:
+                errors.append(
+                    (("max", axis), f"max {name} ({hi:g}) must be greater than min {name} ({lo:g})", hi)
+                )
+            elif not MIN_DOMAIN_EXTENT_M <= extent <= MAX_DOMAIN_EXTENT_M:
+                errors.append(
+                    (
+                        ("max", axis),
+                        f"domain extent along {name} is {extent:g} m; allowed range is "
+                        f"{MIN_DOMAIN_EXTENT_M:g} m to {MAX_DOMAIN_EXTENT_M:g} m",
+                        hi,
+                    )
+                )
+        if errors:
+            _fail(errors, "Domain")
+        return self
+
+    @property
+    def extent(self) -> np.ndarray:
+        return np.asarray(self.max, dtype=np.float64) - np.asarray(self.min, dtype=np.float64)
+
+    def contains(self, point: Vec3) -> bool:
+        """Strictly inside the box (a point on a face is ambiguous for the ray's start cell)."""
+        return all(lo < p < hi for p, lo, hi in zip(point, self.min, self.max, strict=True))
+
+
+class Ground(_Model):
+    """The domain's bottom face. ``flow_resistivity`` in Pa s/m^2 (> 0); None means acoustically rigid."""
+
+    kind: Literal["flat"] = "flat"
+    flow_resistivity: float | None = Field(default=None, gt=0)
+
+
+class Top(_Model):
+    """The domain's top face: rays leave through an open top or reflect specularly."""
+
+    kind: Literal["open", "reflect"] = "open"
+
+
+class Scene(_Model):
+    domain: Domain
+    ground: Ground = Field(default_factory=Ground)
+    top: Top = Field(default_factory=Top)
+    builtin: str | None = None
+
+    @field_validator("builtin")
+    @classmethod
+    def _known_builtin(cls, value: str | None) -> str | None:
+        if value is not None and value not in BUILTIN_SCENES:
+            raise ValueError(f"unknown builtin scene {value!r}; known scenes: {', '.join(BUILTIN_SCENES)}")
+        return value
+
+
+# ---------------------------------------------------------------------------------------------
+# Sources and rays
+# ---------------------------------------------------------------------------------------------
+class Source(_Model):
+    """Point source. ``power_db``: optional sound power level per band label (dB re 1 pW)."""
+
+    position: Vec3
+    power_db: dict[str, float] | None = None
+    name: str | None = None
+
+
+class AngleRange(_Model):
+    """``count`` evenly spaced angles from ``min`` to ``max`` inclusive, in degrees."""
+
+    min: float
+    max: float
+    count: int = Field(ge=1)
+
+    @model_validator(mode="after")
+    def _check_range(self) -> AngleRange:
+        if self.count == 1 and self.min != self.max:
+            _fail(
+                [
+                    (
+                        ("max",),
+                        f"count is 1, so min and max must be equal (got min={self.min:g}, max={self.max:g}); "
+                        "use count >= 2 for a range",
+                        self.max,
+                    )
+                ],
+                type(self).__name__,
+            )
+        if self.count > 1 and not self.max > self.min:
+            _fail(
+                [
+                    (
+                        ("max",),
+                        f"with count={self.count}, max ({self.max:g}) must be greater than "
+                        f"min ({self.min:g})",
+                        self.max,
+                    )
+                ],
+                type(self).__name__,
+            )
+        return self
+
+    def values(self) -> np.ndarray:
+        """The angles in degrees, float64, shape (count,)."""
+        return np.linspace(self.min, self.max, self.count, dtype=np.float64)
+
+
+class ElevationRange(AngleRange):
+    """Elevation angles above the horizontal, within [-90, 90] degrees."""
+
+    min: float = Field(ge=-90.0, le=90.0)
+    max: float = Field(ge=-90.0, le=90.0)
+
+
+def _single_azimuth() -> AngleRange:
+    return AngleRange(min=0.0, max=0.0, count=1)
+
+
+class Rays(_Model):
+    """Launch fan (per source) and per-ray stopping limits."""
+
+    elevation_deg: ElevationRange
+    azimuth_deg: AngleRange = Field(default_factory=_single_azimuth)
+    max_time_s: float = Field(gt=0, le=MAX_TIME_S)
+    max_reflections: int = Field(ge=0, le=MAX_REFLECTIONS)
+    max_steps: int = Field(default=10_000_000, ge=1)
+    record_paths: bool | None = None
+
+    @property
+    def rays_per_source(self) -> int:
+        return self.elevation_deg.count * self.azimuth_deg.count
+
+
+# ---------------------------------------------------------------------------------------------
+# Solver
+# ---------------------------------------------------------------------------------------------
+class Solver(_Model):
+    """How the medium is represented and meshed, and which analytic curve the rays follow.
+
+    ``sizing``: "curvature" (relative tolerance ``delta``) or "gradient" (the paper's rule with
+    parameter ``epsilon``). Giving ``epsilon`` without ``sizing`` selects the gradient rule; read
+    :attr:`effective_sizing`, not ``sizing``. Serialisation writes the effective rule as ``sizing``
+    so a dumped job reloads with the same meaning (the reloaded model then stores ``sizing`` =
+    "gradient" explicitly, so compare solvers by dump or by ``effective_sizing``, not with ``==``).
+    """
+
+    curve: Literal["parabolic", "circular", "n_linear"] = "parabolic"
+    representation: Literal["auto", "uniform", "slabs", "tets"] = "auto"
+    sizing: Literal["curvature", "gradient"] = "curvature"
+    epsilon: float | None = Field(default=None, gt=0)
+    delta: float | None = Field(default=None, gt=0)
+    d_min_m: float | None = Field(default=None, gt=0)
+    d_max_m: float | None = Field(default=None, gt=0)
+    gradient: Literal["lsq", "green_gauss"] = "lsq"
+    path_samples: int = Field(default=400, ge=2)
+
+    @property
+    def effective_sizing(self) -> Literal["curvature", "gradient"]:
+        if self.epsilon is not None and "sizing" not in self.model_fields_set:
+            return "gradient"
+        return self.sizing
+
+    @field_serializer("sizing")
+    def _serialize_sizing(self, value: str) -> str:
+        return self.effective_sizing
+
+    @model_validator(mode="after")
+    def _check_consistency(self) -> Solver:
+        errors = []
+        sizing = self.effective_sizing
+        if sizing == "curvature" and self.epsilon is not None:
+            errors.append(
+                (
+                    ("epsilon",),
+                    "epsilon is the gradient rule's parameter but sizing is 'curvature'; "
+                    "use delta with sizing 'curvature', or set sizing to 'gradient'",
+                    self.epsilon,
+                )
+            )
+        if sizing == "gradient" and self.delta is not None:
+            errors.append(
+                (
+                    ("delta",),
+                    "delta is the curvature rule's tolerance but sizing is 'gradient'; "
+                    "use epsilon with sizing 'gradient', or set sizing to 'curvature'",
+                    self.delta,
+                )
+            )
+        if self.d_min_m is not None and self.d_max_m is not None and self.d_min_m > self.d_max_m:
+            errors.append(
+                (
+                    ("d_max_m",),
+                    f"d_max_m ({self.d_max_m:g}) must be greater than or equal to d_min_m ({self.d_min_m:g})",
+                    self.d_max_m,
+                )
+            )
+        if errors:
+            _fail(errors, "Solver")
+        return self
+
+
+# ---------------------------------------------------------------------------------------------
+# Job
+# ---------------------------------------------------------------------------------------------
+OutputName = Literal["rays", "paths", "mesh", "report"]
+
+
+class Job(_Model):
+    name: str = Field(pattern=_NAME_RE)
+    scene: Scene
+    profile: ProfileSpec
+    sources: list[Source] = Field(min_length=1, max_length=MAX_SOURCES)
+    rays: Rays
+    solver: Solver = Field(default_factory=Solver)
+    outputs: list[OutputName] = Field(default_factory=lambda: ["rays", "report"], min_length=1)
+
+    @field_validator("name")
+    @classmethod
+    def _not_only_dots(cls, value: str) -> str:
+        if set(value) == {"."}:
+            raise ValueError("name must contain a letter, digit, '_' or '-' (not only dots)")
+        return value
+
+    @property
+    def n_rays(self) -> int:
+        """Total rays: sources x elevations x azimuths."""
+        return len(self.sources) * self.rays.rays_per_source
+
+    @model_validator(mode="after")
+    def _check_job(self) -> Job:
+        errors = []
+        domain = self.scene.domain
+        for i, source in enumerate(self.sources):
+            p = source.position
+            if not p[2] > domain.min[2]:
+                errors.append(
+                    (
+                        ("sources", i, "position"),
+                        f"source z={p[2]:g} m is not above the ground (domain min z={domain.min[2]:g} m)",
+                        p,
+                    )
+                )
+            elif not domain.contains(p):
+                errors.append(
+                    (
+                        ("sources", i, "position"),
+                        f"source at ({p[0]:g}, {p[1]:g}, {p[2]:g}) is not strictly inside the domain "
+                        f"[{', '.join(f'{v:g}' for v in domain.min)}] to "
+                        f"[{', '.join(f'{v:g}' for v in domain.max)}]",
+                        p,
+                    )
+                )
+        n_rays = self.n_rays
+        if n_rays > MAX_TOTAL_RAYS:
+            errors.append(
+                (
+                    ("rays",),
+                    f"{len(self.sources)} sources x {self.rays.elevation_deg.count} elevations x "
+                    f"{self.rays.azimuth_deg.count} azimuths = {n_rays:,} rays; the limit is "
+                    f"{MAX_TOTAL_RAYS:,} rays per job",
+                    n_rays,
+                )
+            )
+        if errors:
+            _fail(errors, "Job")
+        return self
+
+
+# ---------------------------------------------------------------------------------------------
+# Loading and error text
+# ---------------------------------------------------------------------------------------------
+def _no_duplicate_keys(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    result: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in result:
+            raise JobFileError(f"duplicate key {key!r} in a JSON object")
+        result[key] = value
+    return result
+
+
+def _reject_constant(name: str) -> Any:
+    raise JobFileError(f"{name} is not valid JSON (non-finite numbers are not allowed)")
+
+
+def parse_job_text(text: str, origin: str = "<job>") -> Job:
+    """Parse JSON text into a :class:`Job`.
+
+    Raises :class:`JobFileError` for invalid JSON (message with line and column) and
+    ``pydantic.ValidationError`` for a schema violation (render it with :func:`format_validation_error`).
+    """
+    try:
+        data = json.loads(text, object_pairs_hook=_no_duplicate_keys, parse_constant=_reject_constant)
+    except json.JSONDecodeError as exc:
+        raise JobFileError(
+            f"{origin}: invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"
+        ) from None
+    except JobFileError as exc:
+        raise JobFileError(f"{origin}: {exc}") from None
+    return Job.model_validate(data)
+
+
+def load_job(path: str | Path) -> Job:
+    """Read and validate a job file (UTF-8 JSON); errors as in :func:`parse_job_text`."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise JobFileError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    except OSError as exc:
+        raise JobFileError(f"{path}: cannot read job file: {exc.strerror or exc}") from None
+    return parse_job_text(text, origin=str(path))
+
+
+def _format_loc(loc: tuple[int | str, ...]) -> str:
+    return ".".join(str(part) for part in loc) if loc else "job"
+
+
+def format_validation_error(exc: ValidationError) -> str:
+    """One ``field.path: reason`` line per error, e.g.
+    ``rays.elevation_deg.count: Input should be greater than or equal to 1``.
+
+    A pure function of the error (no trailing newline); a root-level error is reported as ``job``.
+    Errors inside the discriminated ``profile`` union carry the matched kind, as pydantic reports
+    them (``profile.log.c0: Input should be greater than 0``).
+    """
+    lines = []
+    for error in exc.errors(include_url=False):
+        message = error["msg"]
+        if error["type"] == "value_error" and "error" in error.get("ctx", {}):
+            message = str(error["ctx"]["error"])  # drop pydantic's "Value error, " prefix
+        lines.append(f"{_format_loc(tuple(error['loc']))}: {message}")
+    return "\n".join(lines)
