@@ -18,9 +18,8 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from bentray.engine.errors import BentrayError
-
 import bentray
+from bentray.engine.errors import BentrayError
 
 # Errors reported as one line with exit status 1: bentray's own (engine/errors.py) and the usual
 # input/resource failures. Anything else is a bug and keeps its traceback.
@@ -58,8 +57,9 @@ def _set_threads(n: int) -> None:
 
 
 def _load(job_path: Path):
-    from bentray.scenes.schema import JobFileError, format_validation_error, load_job
     from pydantic import ValidationError
+
+    from bentray.scenes.schema import JobFileError, format_validation_error, load_job
 
     try:
         return load_job(job_path)

@@ -21,7 +21,12 @@ import numpy as np
 from bentray.engine.constants import CURVE_QUANTITY
 from bentray.engine.errors import JobInputError
 from bentray.engine.mesh.cells import CellMesh, locate_points
-from bentray.engine.mesh.sizing import curvature_layers, gradient_layers, relative_error_1d, spacing_function
+from bentray.engine.mesh.sizing import (
+    curvature_layers,
+    gradient_layers,
+    relative_error_1d,
+    sizing_grid_spacing,
+)
 from bentray.engine.mesh.slabs import build_slab_mesh, locate_in_slabs, slab_geometry
 from bentray.engine.profiles import Profile
 from bentray.engine.result import MeshGeometry
@@ -166,14 +171,20 @@ def _build_tets(profile, quantity, solver, lo, hi, representation, reason, groun
     from bentray.engine.mesh.tets import approximation_error, build_tet_mesh
 
     rule, tol, d_min, d_max = _sizing_params(solver, "tets", extent)
-    spacing = spacing_function(
+    grid_step = None
+    native = getattr(profile, "spacing", None)  # gridded input: size it from its own samples
+    if native is not None and np.ndim(native) == 1 and len(native) == 3:
+        grid_step = float(np.min(native))
+    spacing = sizing_grid_spacing(
         lambda p: profile.quantity(quantity, p),
-        lambda p: profile.quantity_gradient(quantity, p),
-        profile.refractive_index_gradient,
+        lambda p: profile.quantity("n", p),
+        lo,
+        hi,
         rule=rule,
         tolerance=tol,
         d_min=d_min,
         d_max=d_max,
+        grid_step=grid_step,
     )
     points = fcc_resample(lo, hi, spacing, d_min=d_min, d_max=d_max)
     tet = build_tet_mesh(

@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from bentray.engine.constants import STATUS_NAMES
 from bentray.engine.result import JobOutcome, MeshGeometry, RayPaths, TraceResult
 

@@ -12,8 +12,9 @@ import math
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from bentray.engine.profiles import Profile, build_profile
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, field_validator, model_validator
+
+from bentray.engine.profiles import Profile, build_profile
 
 __all__ = [
     "HomogeneousSpec",

@@ -16,8 +16,6 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from bentray.engine.errors import BentrayError
-from bentray.scenes.profile_models import ProfileSpec
 from pydantic import (
     BaseModel,
     ConfigDict,
@@ -28,6 +26,9 @@ from pydantic import (
     model_validator,
 )
 from pydantic_core import PydanticCustomError
+
+from bentray.engine.errors import BentrayError
+from bentray.scenes.profile_models import ProfileSpec
 
 __all__ = [
     "BUILTIN_SCENES",

@@ -27,11 +27,12 @@ from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
+from scipy.spatial import Delaunay, cKDTree
+
 from bentray.engine.constants import BOUNDARY_OPEN, BOUNDARY_REFLECT
 from bentray.engine.mesh.cells import CellMesh
 from bentray.engine.mesh.fcc import grow_lattice, hex_directions, separated_from
 from bentray.engine.mesh.gradients import green_gauss_gradients, lsq_gradients
-from scipy.spatial import Delaunay, cKDTree
 
 # Interior points get a seeded random displacement of JITTER_REL * d per coordinate (boundary points
 # the same, inside their face plane or along their edge): FCC and hexagonal lattices are full of

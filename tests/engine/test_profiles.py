@@ -11,9 +11,10 @@ import math
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
+
 from bentray.engine import profiles as P
 from bentray.scenes import profile_models as M
-from pydantic import ValidationError
 
 RNG = np.random.default_rng(12345)
 # Points above ground, away from the hot-spot centre (0, 0, 10): x, y in [-80, 80] m, z in [0.5, 60] m.

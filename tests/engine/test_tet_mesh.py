@@ -5,12 +5,13 @@ from __future__ import annotations
 import bentray  # noqa: F401  # isort: skip  (sets OPENBLAS_NUM_THREADS before numpy / scipy load)
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
+
 from bentray.engine.constants import BOUNDARY_OPEN, BOUNDARY_REFLECT
 from bentray.engine.mesh.cells import locate_points, validate_cell_mesh
 from bentray.engine.mesh.fcc import SEPARATION_RTOL, fcc_resample
 from bentray.engine.mesh.gradients import green_gauss_gradients, lsq_gradients
 from bentray.engine.mesh.tets import approximation_error, build_tet_mesh, locate_tets
-from scipy.spatial import cKDTree
 
 LO = np.array([0.0, 0.0, 0.0])
 HI = np.array([100.0, 80.0, 60.0])

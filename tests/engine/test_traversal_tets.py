@@ -14,7 +14,7 @@ import bentray  # noqa: F401
 from bentray.engine.constants import STATUS_LOST, STATUS_TIME_LIMIT
 from bentray.engine.mesh.cells import locate_points, validate_cell_mesh
 from bentray.engine.mesh.fcc import fcc_resample
-from bentray.engine.mesh.slabs import build_slab_mesh, locate_in_slabs
+from bentray.engine.mesh.slabs import build_slab_mesh
 from bentray.engine.mesh.tets import build_tet_mesh
 from bentray.engine.tracer import trace
 

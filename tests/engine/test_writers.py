@@ -8,6 +8,7 @@ import json
 import numpy as np
 import pytest
 import pyvista as pv
+
 from bentray.engine import writers
 from bentray.engine.constants import STATUS_EXITED, STATUS_LOST, STATUS_NAMES, STATUS_TIME_LIMIT
 from bentray.engine.result import JobOutcome, MeshGeometry, RayPaths, TraceResult

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from pydantic import ValidationError
+
 from bentray.scenes.schema import (
     MAX_TOTAL_RAYS,
     AngleRange,
@@ -18,7 +20,6 @@ from bentray.scenes.schema import (
     load_job,
     parse_job_text,
 )
-from pydantic import ValidationError
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "scenes" / "examples" / "a-ld-fan.json"
 
