@@ -193,6 +193,14 @@ def _build_tets(profile, quantity, solver, lo, hi, representation, reason, groun
     )
     stats = dict(tet.stats)
     stats.update({"sizing_rule": rule, "tolerance": tol, "d_min_m": d_min, "d_max_m": d_max})
+    # the same headline keys as the slab report (cell size = longest edge)
+    stats.update({
+        "cells": int(tet.cells.n_cells),
+        "points": int(len(tet.points)),
+        "min_cell_size_m": float(tet.cells.size.min()),
+        "median_cell_size_m": float(np.median(tet.cells.size)),
+        "max_cell_size_m": float(tet.cells.size.max()),
+    })
     stats["build_time_s"] = time.perf_counter() - t0
     # Eq. 14 on an input grid of about 40^3 points spanning the domain
     axes = [np.linspace(lo[i], hi[i], 40) for i in range(3)]

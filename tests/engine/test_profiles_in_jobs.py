@@ -65,7 +65,8 @@ def test_profile_kind_runs(tmp_path, profile, representation):
     assert np.all(np.isfinite(outcome.trace.position))
     if representation == "tets":
         mesh = report["mesh"]
-        for key in ("n_points", "n_cells", "radius_edge", "build_time_s", "approximation_error_eq14"):
+        for key in ("points", "cells", "min_cell_size_m", "median_cell_size_m", "radius_edge", "build_time_s",
+                    "approximation_error_eq14"):
             assert key in mesh
         assert mesh["approximation_error_eq14"]["rel_error_cell_linear"] < 1e-2
 
