@@ -285,7 +285,33 @@ class Homogeneous(Profile):
         return {**super().describe(), "c0": self.c0}
 
 
-class LinearC(Profile):
+class _LinearInZ(Profile):
+    """Shared body of the three validation profiles that are linear in z in their native quantity:
+    ``m_native = intercept + alpha z`` with ``intercept`` from the subclass's own parameter."""
+
+    _param: ClassVar[str]  # name of the ground-value parameter ("c0" or "n0")
+
+    def __init__(self, value: float, alpha: float, c_ref: float) -> None:
+        super().__init__(c_ref=c_ref, stratified=True)
+        setattr(self, self._param, _positive(self._param, value))
+        self.alpha = _finite("alpha", alpha)
+
+    def _intercept(self) -> float:
+        return float(getattr(self, self._param))
+
+    def _m(self, p: FloatArray) -> FloatArray:
+        return self._intercept() + self.alpha * p[:, 2]
+
+    def _grad_m(self, p: FloatArray) -> FloatArray:
+        g = np.zeros_like(p)
+        g[:, 2] = self.alpha
+        return g
+
+    def describe(self) -> dict[str, Any]:
+        return {**super().describe(), self._param: getattr(self, self._param), "alpha": self.alpha}
+
+
+class LinearC(_LinearInZ):
     """c-linear profile ``c = c0 + alpha z`` (c0 m/s, alpha 1/s). Paper: alpha = 0.1 s^-1.
 
     Not guarded against c <= 0 (far below ground for alpha > 0); the tracer flags invalid media.
@@ -293,48 +319,24 @@ class LinearC(Profile):
 
     kind = "linear_c"
     _native = "c"
+    _param = "c0"
 
     def __init__(self, c0: float = 340.0, alpha: float = 0.1, c_ref: float = 340.0) -> None:
-        super().__init__(c_ref=c_ref, stratified=True)
-        self.c0 = _positive("c0", c0)
-        self.alpha = _finite("alpha", alpha)
-
-    def _m(self, p: FloatArray) -> FloatArray:
-        return self.c0 + self.alpha * p[:, 2]
-
-    def _grad_m(self, p: FloatArray) -> FloatArray:
-        g = np.zeros_like(p)
-        g[:, 2] = self.alpha
-        return g
-
-    def describe(self) -> dict[str, Any]:
-        return {**super().describe(), "c0": self.c0, "alpha": self.alpha}
+        super().__init__(c0, alpha, c_ref)
 
 
-class LinearN(Profile):
+class LinearN(_LinearInZ):
     """n-linear profile ``n = n0 + alpha z`` (alpha 1/m), ``c = c_ref / n``. Paper: alpha = 0.02 m^-1."""
 
     kind = "linear_n"
     _native = "n"
+    _param = "n0"
 
     def __init__(self, n0: float = 1.0, alpha: float = 0.02, c_ref: float = 340.0) -> None:
-        super().__init__(c_ref=c_ref, stratified=True)
-        self.n0 = _positive("n0", n0)
-        self.alpha = _finite("alpha", alpha)
-
-    def _m(self, p: FloatArray) -> FloatArray:
-        return self.n0 + self.alpha * p[:, 2]
-
-    def _grad_m(self, p: FloatArray) -> FloatArray:
-        g = np.zeros_like(p)
-        g[:, 2] = self.alpha
-        return g
-
-    def describe(self) -> dict[str, Any]:
-        return {**super().describe(), "n0": self.n0, "alpha": self.alpha}
+        super().__init__(n0, alpha, c_ref)
 
 
-class LinearN2(Profile):
+class LinearN2(_LinearInZ):
     """n^2-linear profile ``n^2 = n0^2 + alpha z`` (alpha 1/m). Paper: alpha = 0.01 m^-1.
 
     ``quantity("n2")`` is returned exactly as ``n0^2 + alpha z``.
@@ -342,22 +344,13 @@ class LinearN2(Profile):
 
     kind = "linear_n2"
     _native = "n2"
+    _param = "n0"
 
     def __init__(self, n0: float = 1.0, alpha: float = 0.01, c_ref: float = 340.0) -> None:
-        super().__init__(c_ref=c_ref, stratified=True)
-        self.n0 = _positive("n0", n0)
-        self.alpha = _finite("alpha", alpha)
+        super().__init__(n0, alpha, c_ref)
 
-    def _m(self, p: FloatArray) -> FloatArray:
-        return self.n0 * self.n0 + self.alpha * p[:, 2]
-
-    def _grad_m(self, p: FloatArray) -> FloatArray:
-        g = np.zeros_like(p)
-        g[:, 2] = self.alpha
-        return g
-
-    def describe(self) -> dict[str, Any]:
-        return {**super().describe(), "n0": self.n0, "alpha": self.alpha}
+    def _intercept(self) -> float:
+        return self.n0 * self.n0
 
 
 class _Mirage(Profile):
