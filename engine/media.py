@@ -171,12 +171,16 @@ def _build_tets(profile, quantity, solver, lo, hi, representation, reason, groun
     from bentray.engine.mesh.tets import approximation_error, build_tet_mesh
 
     rule, tol, d_min, d_max = _sizing_params(solver, "tets", extent)
+
+    def quantity_at(p: np.ndarray) -> np.ndarray:
+        return profile.quantity(quantity, p)
+
     grid_step = None
     native = getattr(profile, "spacing", None)  # gridded input: size it from its own samples
     if native is not None and np.ndim(native) == 1 and len(native) == 3:
         grid_step = float(np.min(native))
     spacing = sizing_grid_spacing(
-        lambda p: profile.quantity(quantity, p),
+        quantity_at,
         lambda p: profile.quantity("n", p),
         lo,
         hi,
@@ -188,7 +192,7 @@ def _build_tets(profile, quantity, solver, lo, hi, representation, reason, groun
     )
     points = fcc_resample(lo, hi, spacing, d_min=d_min, d_max=d_max)
     tet = build_tet_mesh(
-        lo, hi, points, lambda p: profile.quantity(quantity, p), spacing=spacing,
+        lo, hi, points, quantity_at, spacing=spacing,
         ground=ground, top=top, gradient_method=solver.gradient,
     )
     stats = dict(tet.stats)
@@ -205,7 +209,7 @@ def _build_tets(profile, quantity, solver, lo, hi, representation, reason, groun
     # Eq. 14 on an input grid of about 40^3 points spanning the domain
     axes = [np.linspace(lo[i], hi[i], 40) for i in range(3)]
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
-    stats["approximation_error_eq14"] = approximation_error(tet, grid, profile.quantity(quantity, grid))
+    stats["approximation_error_eq14"] = approximation_error(tet, grid, quantity_at(grid))
     mesh = tet.cells
     return Media(
         representation=representation,
