@@ -1,0 +1,1 @@
+"""Sound propagation physics outside the ray kernels: absorption, ground impedance, weighting."""

@@ -1,0 +1,1 @@
+"""Numerical ray-integration baselines (Euler, RK4, Dormand-Prince) the analytic tracer is measured against."""

@@ -1,0 +1,1 @@
+"""bentray bench: error against run time, tables and plots."""
