@@ -2,27 +2,44 @@
 
 The import-time environment defaults below must run before numpy/numba load:
 - ``NUMBA_CACHE_DIR``: kernels use ``cache=True``; a read-only checkout would otherwise fail at import.
+  The default folder is keyed by a hash of the engine's source: numba invalidates a cached kernel when
+  its own file changes but not when a function it calls from another module does, so an upgrade or an
+  edit could otherwise run stale machine code (this happened here with the ground-reflection table).
 - ``OPENBLAS_NUM_THREADS=1``: scipy's first ``Delaunay.find_simplex`` took over 100 s on the 2-core
   machines with OpenBLAS threading on. Users can still override both from the environment.
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
 import tempfile
+from pathlib import Path
 
 __version__ = "0.1.0"
 
 
+def _engine_source_key() -> str:
+    """Short hash of every engine source file (about 1 ms): the numba cache folder's name."""
+    engine = Path(__file__).resolve().parent.parent / "engine"
+    if not engine.is_dir():  # installed layout: bentray/engine
+        engine = Path(__file__).resolve().parent / "engine"
+    digest = hashlib.sha1(__version__.encode())
+    for path in sorted(engine.rglob("*.py")):
+        digest.update(path.name.encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:12]
+
+
 def _default_numba_cache_dir() -> str:
-    home_cache = os.path.join(os.path.expanduser("~"), ".cache", "bentray", "numba")
+    home_cache = os.path.join(os.path.expanduser("~"), ".cache", "bentray", "numba", _engine_source_key())
     try:
         os.makedirs(home_cache, exist_ok=True)
         if os.access(home_cache, os.W_OK):
             return home_cache
     except OSError:
         pass
-    return os.path.join(tempfile.gettempdir(), "bentray-numba-cache")
+    return os.path.join(tempfile.gettempdir(), "bentray-numba-cache", _engine_source_key())
 
 
 os.environ.setdefault("NUMBA_CACHE_DIR", _default_numba_cache_dir())

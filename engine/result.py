@@ -50,6 +50,9 @@ class TraceResult:
     nudges: np.ndarray
     paths: RayPaths | None = None
     steps: np.ndarray | None = None  # (n,) int64 curve segments per ray (cells entered + reflections)
+    # (n, R) incidence cosine |T.m| and face material of each ray's first R reflections (field runs only)
+    reflection_cos: np.ndarray | None = None
+    reflection_material: np.ndarray | None = None
 
     @property
     def n_rays(self) -> int:
@@ -81,3 +84,4 @@ class JobOutcome:
     trace: TraceResult
     mesh_geometry: MeshGeometry | None
     report: dict[str, Any]
+    field: Any | None = None  # engine.field.FieldArrays when the job asked for a field

@@ -15,8 +15,10 @@ import numba
 import numpy as np
 
 import bentray
+from bentray.engine import field as field_stage
 from bentray.engine.errors import JobInputError
 from bentray.engine.media import build_media
+from bentray.engine.mesh.cells import CellMesh
 from bentray.engine.result import JobOutcome, TraceResult
 from bentray.engine.tracer import trace
 from bentray.scenes.profile_models import profile_from_spec
@@ -85,19 +87,43 @@ def run_job(job: Job, base_dir: Path | None = None) -> JobOutcome:
     timings["locate"] = time.perf_counter() - t0
 
     record = _wants_paths(job)
+    mesh = media.mesh
+    buffers = None
+    powers = None
+    if job.field is not None:
+        t0 = time.perf_counter()
+        mesh, buffers, powers = _prepare_field(job, mesh, len(origins), src_idx)
+        timings["field_setup"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     result: TraceResult = trace(
-        media.mesh, job.solver.curve, profile.c_ref, origins, dirs, start_cells,
+        mesh, job.solver.curve, profile.c_ref, origins, dirs, start_cells,
         max_time_s=job.rays.max_time_s, max_reflections=job.rays.max_reflections,
         max_steps=job.rays.max_steps, path_samples=job.solver.path_samples if record else 0,
+        field=buffers,
     )
     timings["trace"] = time.perf_counter() - t0
-    stages["trace"] = f"ran: {job.solver.curve} curve, {result.n_rays} rays"
+    stages["trace"] = f"ran: {job.solver.curve} curve, {result.n_rays} rays" + (
+        " (field accumulated along the curves)" if buffers is not None else "")
     stages["paths"] = "ran: sampled on the true curves" if record else "skipped: no 'rays' or 'paths' output"
-    stages["field"] = "skipped: no field requested"
     result.source = src_idx
     result.elevation_deg = el
     result.azimuth_deg = az
+    field_arrays = None
+    if job.field is not None and buffers is not None:
+        t0 = time.perf_counter()
+        grid_points = buffers.grid.points()
+        field_arrays = field_stage.finalize(job.field, buffers, profile.sound_speed(grid_points), result, powers,
+                                            job.scene.ground.flow_resistivity)
+        field_arrays.preview = {
+            "source_xyz": list(job.sources[0].position),
+            "receiver_z": float(lo[2] + job.field.receiver_height_m),
+            "title": f"{job.name}: {profile.kind} profile, {result.n_rays} rays",
+        }
+        timings["field_finalize"] = time.perf_counter() - t0
+        stages["field"] = (f"ran: {job.field.mode}, {buffers.grid.n_points} points, "
+                           f"{len(job.field.frequencies_hz)} bands")
+    else:
+        stages["field"] = "skipped: no field requested"
 
     geometry = None
     if "mesh" in job.outputs:
@@ -110,7 +136,27 @@ def run_job(job: Job, base_dir: Path | None = None) -> JobOutcome:
 
     report = build_report(job, profile.describe(), media.representation, media.reason, media.stats,
                           result, timings, stages)
-    return JobOutcome(trace=result, mesh_geometry=geometry, report=report)
+    if field_arrays is not None:
+        report["field"] = field_arrays.stats
+    return JobOutcome(trace=result, mesh_geometry=geometry, report=report, field=field_arrays)
+
+
+def _prepare_field(job: Job, mesh: CellMesh, n_rays: int, src_idx: np.ndarray):
+    """Ground material on the mesh, per-ray launch weights, source powers (W) and the accumulators."""
+    spec = job.field
+    assert spec is not None
+    sigma = job.scene.ground.flow_resistivity
+    if sigma is not None:
+        mesh = field_stage.tag_ground_material(mesh, float(job.scene.domain.min[2]), field_stage.GROUND_MATERIAL)
+    per_source = field_stage.launch_solid_angles(job.rays.elevation_deg.values(), job.rays.azimuth_deg.values())
+    weights = np.tile(per_source, len(job.sources))
+    powers = None
+    if job.sources[0].power_db is not None:
+        powers = np.array([[field_stage.W_REF * 10.0 ** (src.power_db[b] / 10.0) for b in spec.labels]
+                           for src in job.sources])
+    buffers = field_stage.prepare(spec, ray_weights=weights, source_index=src_idx, source_powers_w=powers,
+                                  flow_resistivity=sigma, max_reflections=job.rays.max_reflections)
+    return mesh, buffers, powers
 
 
 def build_report(job: Job, profile_desc: dict[str, Any], representation: str, reason: str,

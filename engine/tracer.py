@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 
 from bentray.engine.constants import CURVE_CODES
+from bentray.engine.field_buffers import REFLECTION_RECORD_CAP, FieldBuffers, no_field_tuple
 from bentray.engine.kernels.traverse import trace_rays
 from bentray.engine.mesh.cells import CellMesh
 from bentray.engine.result import RayPaths, TraceResult
@@ -27,12 +29,15 @@ def trace(
     max_reflections: int,
     max_steps: int = 10_000_000,
     path_samples: int = 0,
+    field: FieldBuffers | None = None,
 ) -> TraceResult:
     """Trace rays through ``mesh`` with the given curve kind.
 
     origins, directions : (n, 3) float64, metres / unit vectors, world frame.
     start_cells : (n,) int64 cell containing each origin (-1: not in the mesh -> status lost).
     path_samples : samples per ray for rays.vtp (0: no path recording, no path buffers).
+    field : accumulators to fill along the curves (None: no accumulation, no field arrays); when
+        given, the result also carries each ray's first reflections (incidence cosine, face material).
     Returns a TraceResult with launch angles left at NaN (the caller fills them in).
     """
     if curve not in CURVE_CODES:
@@ -54,11 +59,22 @@ def trace(
     dt_sample = max_time_s / max(path_samples, 1)
     out_state = np.zeros((n, 8))
     out_counts = np.zeros((n, 6), dtype=np.int64)
+    if field is not None:
+        if field.weights.shape[0] != n:
+            raise ValueError("field weights must have one row per ray")
+        fld, f_weights, n_slots = field.kernel_tuple(), field.weights, field.n_slots
+        refl_cap = REFLECTION_RECORD_CAP
+    else:
+        fld, f_weights = no_field_tuple(n)
+        n_slots = 4 * int(numba.get_num_threads())
+        refl_cap = 1
+    refl_cos = np.zeros((n, refl_cap))
+    refl_mat = np.zeros((n, refl_cap), dtype=np.int64)
     trace_rays(
         mesh.planes, mesh.neighbours, mesh.neighbour_face, mesh.media_ref, mesh.ref_point,
-        mesh.gradient, mesh.size, CURVE_CODES[curve], float(c_ref), origins, directions, start_cells,
-        float(max_time_s), int(max_reflections), int(max_steps), record, float(dt_sample), cap,
-        path_pts, path_t, path_s, out_state, out_counts,
+        mesh.gradient, mesh.size, mesh.face_material, CURVE_CODES[curve], float(c_ref), origins, directions,
+        start_cells, float(max_time_s), int(max_reflections), int(max_steps), record, float(dt_sample), cap,
+        path_pts, path_t, path_s, fld, f_weights, n_slots, refl_cos, refl_mat, out_state, out_counts,
     )
     paths = None
     if record:
@@ -82,4 +98,6 @@ def trace(
         nudges=out_counts[:, 3].copy(),
         paths=paths,
         steps=out_counts[:, 4].copy(),
+        reflection_cos=refl_cos if field is not None else None,
+        reflection_material=refl_mat if field is not None else None,
     )

@@ -52,8 +52,8 @@ RAYS_CSV_COLUMNS = (
     "status",
 )
 # Every file name write_outcome may produce (stale ones from an earlier run are removed).
-OUTPUT_FILES = ("rays.csv", "rays.vtp", "mesh.vtu", "report.json")
-_KNOWN_OUTPUTS = ("rays", "paths", "mesh", "report")
+OUTPUT_FILES = ("rays.csv", "rays.vtp", "mesh.vtu", "field.vti", "preview.png", "report.json")
+_KNOWN_OUTPUTS = ("rays", "paths", "mesh", "report", "field")
 _CSV_CHUNK_ROWS = 65_536
 _VTK_CELL_TYPES = {"tetra": (10, 4), "hexahedron": (12, 8)}  # name -> (VTK cell type id, points per cell)
 
@@ -269,6 +269,25 @@ def write_report_json(report: dict, path: str | Path) -> Path:
 # ---------------------------------------------------------------------------------------------
 # All outputs of a job
 # ---------------------------------------------------------------------------------------------
+def _write_field(outcome: JobOutcome, path: Path) -> None:
+    from bentray.engine.field_output import write_field_vti
+
+    fa = outcome.field
+    assert fa is not None
+    write_field_vti(path, fa.grid.origin, fa.grid.spacing, fa.grid.shape, fa.arrays, fa.field_data)
+
+
+def _write_preview(outcome: JobOutcome, path: Path) -> None:
+    from bentray.engine.field_output import write_preview_png
+
+    fa = outcome.field
+    assert fa is not None
+    name, label = fa.preview_array()
+    write_preview_png(path, fa.grid.origin, fa.grid.spacing, fa.grid.shape, fa.arrays[name],
+                      source_xyz=fa.preview["source_xyz"], receiver_z=fa.preview["receiver_z"],
+                      title=fa.preview["title"], label=label)
+
+
 def _planned_files(outcome: JobOutcome, outputs: list[str]) -> list[str]:
     unknown = [name for name in outputs if name not in _KNOWN_OUTPUTS]
     if unknown:
@@ -285,6 +304,10 @@ def _planned_files(outcome: JobOutcome, outputs: list[str]) -> list[str]:
             files.append("rays.vtp")
     if "mesh" in outputs and outcome.mesh_geometry is not None:
         files.append("mesh.vtu")
+    if "field" in outputs:
+        if outcome.field is None:
+            raise ValueError("output 'field' was requested but the job produced no field")
+        files.extend(["field.vti", "preview.png"])
     if "report" in outputs:
         files.append("report.json")
     return files
@@ -309,6 +332,8 @@ def write_outcome(outcome: JobOutcome, outputs: list[str], out_dir: str | Path) 
         "rays.vtp": lambda p: write_rays_vtp(outcome.trace, p),
         "mesh.vtu": lambda p: write_mesh_vtu(outcome.mesh_geometry, p),
         "report.json": lambda p: write_report_json(outcome.report, p),
+        "field.vti": lambda p: _write_field(outcome, p),
+        "preview.png": lambda p: _write_preview(outcome, p),
     }
     parent = out_dir.absolute().parent
     parent.mkdir(parents=True, exist_ok=True)

@@ -89,9 +89,7 @@ class LogSpec(_RefSpec):
 
 
 class _MirageSpec(_RefSpec):
-    mu0: float = Field(
-        1.000233, gt=0.0, description="Refractive index at z = 0 (inferior) or far above (superior)."
-    )
+    mu0: float = Field(1.000233, gt=0.0, description="Refractive index at z = 0 (inferior) or far above (superior).")
     mu1: float = Field(0.4584, description="Refractive-index change scale (n^2 changes by mu1^2).")
     beta: float = Field(2.303, description="Decay rate (1/m).")
 

@@ -28,6 +28,7 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from bentray.engine.errors import BentrayError
+from bentray.scenes.field_models import MAX_COHERENT_FIELD_POINTS, FieldSpec
 from bentray.scenes.profile_models import ProfileSpec
 
 __all__ = [
@@ -105,9 +106,7 @@ class Domain(_Model):
             name = _AXES[axis]
             extent = hi - lo
             if hi <= lo:
-                errors.append(
-                    (("max", axis), f"max {name} ({hi:g}) must be greater than min {name} ({lo:g})", hi)
-                )
+                errors.append((("max", axis), f"max {name} ({hi:g}) must be greater than min {name} ({lo:g})", hi))
             elif not MIN_DOMAIN_EXTENT_M <= extent <= MAX_DOMAIN_EXTENT_M:
                 errors.append(
                     (
@@ -194,8 +193,7 @@ class AngleRange(_Model):
                 [
                     (
                         ("max",),
-                        f"with count={self.count}, max ({self.max:g}) must be greater than "
-                        f"min ({self.min:g})",
+                        f"with count={self.count}, max ({self.max:g}) must be greater than min ({self.min:g})",
                         self.max,
                     )
                 ],
@@ -305,7 +303,7 @@ class Solver(_Model):
 # ---------------------------------------------------------------------------------------------
 # Job
 # ---------------------------------------------------------------------------------------------
-OutputName = Literal["rays", "paths", "mesh", "report"]
+OutputName = Literal["rays", "paths", "mesh", "report", "field"]
 
 
 class Job(_Model):
@@ -316,6 +314,7 @@ class Job(_Model):
     rays: Rays
     solver: Solver = Field(default_factory=Solver)
     outputs: list[OutputName] = Field(default_factory=lambda: ["rays", "report"], min_length=1)
+    field: FieldSpec | None = None
 
     @field_validator("name")
     @classmethod
@@ -364,9 +363,92 @@ class Job(_Model):
                     n_rays,
                 )
             )
+        errors.extend(self._field_errors())
         if errors:
             _fail(errors, "Job")
         return self
+
+    def _field_errors(self) -> list[tuple[tuple[str | int, ...], str, Any]]:
+        """Consistency of ``field`` with outputs, domain, fan and source powers."""
+        errors: list[tuple[tuple[str | int, ...], str, Any]] = []
+        spec = self.field
+        powered = [i for i, src in enumerate(self.sources) if src.power_db is not None]
+        if spec is None:
+            if "field" in self.outputs:
+                errors.append((("field",), "outputs include 'field' but no field grid is given", None))
+            return errors
+        if "field" not in self.outputs:
+            errors.append((("outputs",), "a field grid is given but 'field' is not in outputs", self.outputs))
+        domain = self.scene.domain
+        lo, hi = np.asarray(spec.origin, float), spec.upper_corner
+        for axis, name in enumerate(_AXES):
+            if lo[axis] < domain.min[axis] or hi[axis] > domain.max[axis]:
+                errors.append(
+                    (
+                        ("field", "origin"),
+                        f"grid spans {name} = {lo[axis]:g} .. {hi[axis]:g} m, outside the domain "
+                        f"{domain.min[axis]:g} .. {domain.max[axis]:g} m",
+                        spec.origin,
+                    )
+                )
+        for key, rng in (("elevation_deg", self.rays.elevation_deg), ("azimuth_deg", self.rays.azimuth_deg)):
+            if rng.count < 2:
+                errors.append(
+                    (
+                        ("rays", key, "count"),
+                        "a field needs a 3D fan (count >= 2): each ray carries the power of its launch solid angle",
+                        rng.count,
+                    )
+                )
+        if spec.mode == "coherent":
+            if len(self.sources) != 1:
+                errors.append(
+                    (
+                        ("field", "mode"),
+                        "coherent mode sums the arrivals of one source; "
+                        f"got {len(self.sources)} sources (use one job per source, or 'incoherent')",
+                        spec.mode,
+                    )
+                )
+            if spec.n_points > MAX_COHERENT_FIELD_POINTS:
+                errors.append(
+                    (
+                        ("field", "shape"),
+                        f"coherent mode allows at most {MAX_COHERENT_FIELD_POINTS:,} points (got {spec.n_points:,})",
+                        spec.shape,
+                    )
+                )
+        if powered and len(powered) != len(self.sources):
+            i = next(i for i in range(len(self.sources)) if i not in powered)
+            errors.append(
+                (
+                    ("sources", i, "power_db"),
+                    "some sources give power_db and this one does not; give it for every source or none",
+                    None,
+                )
+            )
+        labels = spec.labels
+        for i in powered:
+            given = self.sources[i].power_db or {}
+            missing = [b for b in labels if b not in given]
+            extra = [b for b in given if b not in labels]
+            if missing:
+                errors.append(
+                    (
+                        ("sources", i, "power_db"),
+                        f"missing band(s) {', '.join(missing)} Hz of field.frequencies_hz",
+                        given,
+                    )
+                )
+            if extra:
+                errors.append(
+                    (
+                        ("sources", i, "power_db"),
+                        f"band(s) {', '.join(extra)} are not in field.frequencies_hz ({', '.join(labels)})",
+                        given,
+                    )
+                )
+        return errors
 
 
 # ---------------------------------------------------------------------------------------------
@@ -394,9 +476,7 @@ def parse_job_text(text: str, origin: str = "<job>") -> Job:
     try:
         data = json.loads(text, object_pairs_hook=_no_duplicate_keys, parse_constant=_reject_constant)
     except json.JSONDecodeError as exc:
-        raise JobFileError(
-            f"{origin}: invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"
-        ) from None
+        raise JobFileError(f"{origin}: invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}") from None
     except JobFileError as exc:
         raise JobFileError(f"{origin}: {exc}") from None
     return Job.model_validate(data)

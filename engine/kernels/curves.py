@@ -26,6 +26,16 @@ CS_SIZE = 16
 
 
 @nb.njit(**NJIT_FLAGS)
+def slowness(curve: int, m: float, c_ref: float) -> float:
+    """1/c (s/m) from the traced quantity m (n^2, c or n) of the curve kind."""
+    if curve == CURVE_PARABOLIC:
+        return math.sqrt(m) / c_ref
+    if curve == CURVE_CIRCULAR:
+        return 1.0 / m
+    return m / c_ref
+
+
+@nb.njit(**NJIT_FLAGS)
 def setup(curve: int, m0: float, g, d0, cs) -> bool:
     """Fill ``cs`` for the cell; False when the media value is unphysical (n^2, c or n <= 0)."""
     if not (m0 > 0.0) or not math.isfinite(m0):

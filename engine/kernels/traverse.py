@@ -28,8 +28,6 @@ import numpy as np
 from bentray.engine.constants import (
     BOUNDARY_OPEN,
     BOUNDARY_REFLECT,
-    CURVE_CIRCULAR,
-    CURVE_PARABOLIC,
     FACE_UNUSED,
     MAX_NUDGES_IN_A_ROW,
     MAX_WALK,
@@ -44,7 +42,7 @@ from bentray.engine.constants import (
     STATUS_STEP_LIMIT,
     STATUS_TIME_LIMIT,
 )
-from bentray.engine.kernels import curves
+from bentray.engine.kernels import curves, field
 
 # Zero-length steps in a row (edge/vertex walks) before the ray is nudged: a walk around one edge
 # of a Delaunay mesh visits at most a few dozen cells.
@@ -59,16 +57,6 @@ def _media_at(media_ref, ref_point, gradient, cell, x):
         + gradient[cell, 1] * (x[1] - ref_point[cell, 1])
         + gradient[cell, 2] * (x[2] - ref_point[cell, 2])
     )
-
-
-@nb.njit(**NJIT_FLAGS)
-def _slowness(curve, m0, c_ref):
-    """1/c (s/m) from the traced quantity m0 (n^2, c or n)."""
-    if curve == CURVE_PARABOLIC:
-        return math.sqrt(m0) / c_ref
-    if curve == CURVE_CIRCULAR:
-        return 1.0 / m0
-    return m0 / c_ref
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -133,16 +121,36 @@ def _emit_segment(curve, cs, x0, d0, param_end, t0, s0, t_end, c_ref, t_last, dt
 
 
 @nb.njit(**NJIT_FLAGS)
+def _deposit(fld, curve, cs, x0, d0, x1, param_end, t0, s0, seg_s, c_ref, m0, grad_m, f_weights,
+             refl_cos, refl_mat, n_refl, gq, gq_state, last_vox, ray_id, acc, xs, ts):
+    field.deposit_segment(
+        curve, cs, x0, d0, x1, param_end, t0, s0, seg_s, c_ref, m0, grad_m,
+        fld[0], fld[1], fld[2], f_weights, fld[3], fld[4], fld[5], fld[6],
+        refl_cos, refl_mat, n_refl, gq, gq_state, last_vox, ray_id, acc,
+        fld[7], fld[8], fld[9], fld[10], fld[11], fld[12], fld[13], xs, ts,
+    )
+
+
+@nb.njit(**NJIT_FLAGS)
 def trace_one(
-    planes, neighbours, neighbour_face, media_ref, ref_point, gradient, size,
+    planes, neighbours, neighbour_face, media_ref, ref_point, gradient, size, face_material,
     curve, c_ref, x_start, d_start, cell_start, max_time, max_reflections, max_steps,
     record, dt_sample, path_pts, path_t, path_s, path_base, path_cap,
+    fld, f_weights, acc, ray_id, refl_cos, refl_mat,
     out_state, out_counts,
 ):
     """Trace one ray. out_state (8,): x, y, z, dx, dy, dz, time_s, length_m.
 
     out_counts (6,): status, reflections, crossings, nudges, steps, path samples.
+    fld : field tuple (see tracer.FieldBuffers.kernel_tuple; mode FIELD_OFF = no accumulation);
+    f_weights : (n_f,) this ray's power per accumulated band; acc : its accumulator slot.
+    refl_cos, refl_mat : (R,) incidence cosine and face material of the ray's first R reflections.
     """
+    mode = fld[0]
+    f_on = mode != field.FIELD_OFF
+    gq = np.ones(f_weights.shape[0])
+    gq_state = np.full(1, -1.0)
+    last_vox = np.full(1, -1, dtype=np.int64)
     x = x_start.copy()
     d = d_start.copy()
     norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
@@ -200,7 +208,7 @@ def trace_one(
             eta = NUDGE_REL * cell_size
             for i in range(3):
                 x[i] += eta * d[i]
-            t += eta * _slowness(curve, m0, c_ref)
+            t += eta * curves.slowness(curve, m0, c_ref)
             s += eta
             cell, outcome = _walk(planes, neighbours, cell, x)
             entry = -1
@@ -216,6 +224,9 @@ def trace_one(
         if t + dt >= max_time:
             param_end = curves.param_at_time(curve, cs, max_time - t, param, c_ref)
             ds = curves.evaluate(curve, cs, x, d, param_end, xn, dn)
+            if f_on:
+                _deposit(fld, curve, cs, x, d, xn, param_end, t, s, ds, c_ref, m0, gradient[cell], f_weights,
+                         refl_cos, refl_mat, reflections, gq, gq_state, last_vox, ray_id, acc, xs, ts)
             if record and max_time - t > dt_sample:
                 count, t_last = _emit_segment(curve, cs, x, d, param_end, t, s, max_time, c_ref, t_last,
                                               dt_sample, path_pts, path_t, path_s, path_base, path_cap,
@@ -228,6 +239,9 @@ def trace_one(
             status = STATUS_TIME_LIMIT
             break
         ds = curves.evaluate(curve, cs, x, d, param, xn, dn)
+        if f_on:
+            _deposit(fld, curve, cs, x, d, xn, param, t, s, ds, c_ref, m0, gradient[cell], f_weights,
+                     refl_cos, refl_mat, reflections, gq, gq_state, last_vox, ray_id, acc, xs, ts)
         if record:
             if dt > dt_sample:
                 count, t_last = _emit_segment(curve, cs, x, d, param, t, s, t + dt, c_ref, t_last,
@@ -259,6 +273,10 @@ def trace_one(
                 status = STATUS_REFLECTION_LIMIT
                 break
             dot = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
+            if reflections < refl_cos.shape[0]:
+                refl_cos[reflections] = abs(dot)
+                refl_mat[reflections] = face_material[cell, face]
+            gq_state[0] = -1.0  # ground factors change with every reflection
             for i in range(3):
                 d[i] -= 2.0 * dot * planes[cell, face, i]
             norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
@@ -289,18 +307,26 @@ def trace_one(
 
 @nb.njit(**PARALLEL_FLAGS)
 def trace_rays(
-    planes, neighbours, neighbour_face, media_ref, ref_point, gradient, size,
+    planes, neighbours, neighbour_face, media_ref, ref_point, gradient, size, face_material,
     curve, c_ref, origins, directions, start_cells, max_time, max_reflections, max_steps,
     record, dt_sample, path_cap, path_pts, path_t, path_s,
+    fld, f_weights, n_slots, refl_cos, refl_mat,
     out_state, out_counts,
 ):
-    """Trace all rays in parallel (prange). Ray i owns out_state[i], out_counts[i] and the path slice
-    ``[i * path_cap, (i + 1) * path_cap)``: no shared writes, deterministic results."""
+    """Trace all rays in parallel (prange over ``n_slots`` accumulator slots, rays interleaved).
+
+    Ray i owns out_state[i], out_counts[i], refl_cos[i], refl_mat[i] and the path slice
+    ``[i * path_cap, (i + 1) * path_cap)``; field accumulator slot ``i % n_slots`` is only written by
+    the one thread running that slot. For a fixed n_slots the results are deterministic.
+    f_weights : (n, n_f) per-ray band powers (n_f may be 0 when no field is accumulated).
+    """
     n = origins.shape[0]
-    for i in nb.prange(n):
-        trace_one(
-            planes, neighbours, neighbour_face, media_ref, ref_point, gradient, size,
-            curve, c_ref, origins[i], directions[i], start_cells[i], max_time, max_reflections, max_steps,
-            record, dt_sample, path_pts, path_t, path_s, i * path_cap, path_cap,
-            out_state[i], out_counts[i],
-        )
+    for slot in nb.prange(n_slots):
+        for i in range(slot, n, n_slots):
+            trace_one(
+                planes, neighbours, neighbour_face, media_ref, ref_point, gradient, size, face_material,
+                curve, c_ref, origins[i], directions[i], start_cells[i], max_time, max_reflections, max_steps,
+                record, dt_sample, path_pts, path_t, path_s, i * path_cap, path_cap,
+                fld, f_weights[i], slot, i, refl_cos[i], refl_mat[i],
+                out_state[i], out_counts[i],
+            )

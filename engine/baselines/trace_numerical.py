@@ -1,0 +1,692 @@
+"""Numerical ray integration with the analytic tracer's boundaries, end states and outputs.
+
+The baseline family of the paper's comparison (Weiskopf et al., papers/002: polygonal rays from a
+numerical ODE solver, step-doubling adaptive steps, early ray termination), on the same scenes as the
+analytic tracer: ``euler`` (fixed step), ``euler_adaptive`` (step doubling), ``rk4`` (fixed step) and
+``dopri5`` (Dormand-Prince 5(4), adaptive), integrating the ray ODE in sigma (integrators.py), over
+exact closed-form media or a CellMesh's per-cell linear media. Parallel over rays (prange).
+
+Boundaries: the flat ground ``z = ground_z`` reflects specularly, the domain sides are open, the top
+``z = domain_max[2]`` is open or reflecting; with mesh media the CellMesh's boundary faces also count
+(``BOUNDARY_REFLECT`` reflects with the face's plane normal, ``BOUNDARY_OPEN`` exits). A boundary is
+detected when a step ends beyond it (a step that leaves and re-enters within itself is not seen: keep
+steps short against the ray's curvature). The crossing is located on the chord of the step (the first
+guess ``h g0 / (g0 - g1)``) and then refined by Illinois regula falsi on the *restarted* step: each
+guess re-takes the step from its start with the reduced length (counted as a restart, the paper's
+Table 3), until the ray lands within ``LAND_REL (1 + |x|)`` metres of the plane; the point is then
+snapped onto the plane and the direction reflected (``p' = p - 2 (p.m) m``). Straight rays need one
+restart. The time limit is a boundary in t: the last step is restarted so that the ray stops at
+exactly ``max_time_s``. A ray sitting on a boundary whose step still ends beyond it (curving out of a
+plane it grazes) is searched for an interior re-entry by halving; if there is none it *slides*: the end
+point is projected onto the plane and the outward part of p reflected (one reflection).
+
+End states as in the analytic tracer: time_limit, reflection_limit, exited, step_limit (``max_steps``
+accepted steps), lost (n <= 0, non-finite state, step size underflow, or a mesh walk that did not
+converge). ``p`` is not renormalised to ``|p| = n(x)`` after a step unless ``renormalize=True``
+(the paper's baselines do not; the effect is measured in bench/baselines_probe.py).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba as nb
+import numpy as np
+
+from bentray.engine.baselines.integrators import (
+    MEDIA_MESH,
+    METHOD_CODES,
+    METHOD_EULER,
+    METHOD_EULER_ADAPTIVE,
+    METHOD_RK4,
+    NY,
+    WORK_ROWS,
+    advance,
+    error_norm,
+    make_media,
+    media_n,
+    rhs,
+)
+from bentray.engine.baselines.mesh_media import WALK_FAILED, walk
+from bentray.engine.constants import (
+    BOUNDARY_OPEN,
+    BOUNDARY_REFLECT,
+    NJIT_FLAGS,
+    PARALLEL_FLAGS,
+    STATUS_EXITED,
+    STATUS_LOST,
+    STATUS_REFLECTION_LIMIT,
+    STATUS_RUNNING,
+    STATUS_STEP_LIMIT,
+    STATUS_TIME_LIMIT,
+)
+from bentray.engine.mesh.cells import CellMesh, locate_points
+from bentray.engine.result import RayPaths, TraceResult
+from bentray.engine.tracer import path_capacity
+
+__all__ = ["trace_numerical", "NUMERICAL_METHODS"]
+
+NUMERICAL_METHODS = tuple(METHOD_CODES)
+
+# A ray has landed on a plane when |m.x - h| <= LAND_REL (1 + max|x_i|) metres: ~200 ulps of a
+# coordinate, so regula falsi reaches it in a few restarts, and 3e-10 m at km range, far below any
+# integrator error measured here (the snap onto the plane moves the point by at most this).
+LAND_REL = 1e-13
+# ... and on the time limit when |t - max_time| <= TIME_LAND_REL max(1, max_time) seconds (then t is
+# set to max_time exactly).
+TIME_LAND_REL = 1e-14
+# Regula falsi iterations per landing (Illinois converges superlinearly: 2-5 in practice; bisection
+# safeguard, so 60 iterations shrink any bracket below float64 resolution).
+MAX_LAND_ITERS = 60
+# Halvings of a step tried to find an interior point back inside a plane the ray starts on.
+MAX_GRAZE_HALVINGS = 8
+# A landing that reveals an earlier crossing of another boundary is re-targeted at most this often.
+MAX_RETARGETS = 8
+# Step-size controller of DOPRI5 (Hairer, Norsett & Wanner II.4): h_new = h min(FAC_MAX, max(FAC_MIN,
+# SAFETY err^(-1/5))); no growth right after a rejection.
+SAFETY = 0.9
+FAC_MIN = 0.2
+FAC_MAX = 5.0
+# Step doubling (paper Sec. 4.2): halve and retry above the tolerance; double after a step whose
+# error is below a quarter of it (Euler's local error grows 4x when h doubles); keep h in between.
+DOUBLING_GROW_BELOW = 0.25
+# Consecutive rejected trial steps before the ray is declared lost (h shrinks by >= 2 each time).
+MAX_REJECTS_IN_A_ROW = 200
+
+EV_NONE = 0
+EV_PLANE = 1
+EV_TIME = 2
+
+
+@nb.njit(**NJIT_FLAGS)
+def _evals(method):
+    """New right-hand-side evaluations per call of integrators.advance."""
+    if method == METHOD_EULER:
+        return 0
+    if method == METHOD_EULER_ADAPTIVE:
+        return 1
+    if method == METHOD_RK4:
+        return 3
+    return 7
+
+
+@nb.njit(**NJIT_FLAGS)
+def _plane_g(pl, y):
+    return pl[0] * y[0] + pl[1] * y[1] + pl[2] * y[2] - pl[3]
+
+
+@nb.njit(**NJIT_FLAGS)
+def _event_g(kind, pl, max_time, y):
+    if kind == EV_TIME:
+        return y[6] - max_time
+    return _plane_g(pl, y)
+
+
+@nb.njit(**NJIT_FLAGS)
+def _detect(y0, y1, bplanes, btags, media, cell, max_time, eps_x, eps_t, evp, grz):
+    """Earliest boundary event of the step y0 -> y1, ordered by chord fraction.
+
+    Planes the ray sits on at y0 while not moving outward (g0 >= -eps, p.m <= 0) are not events but
+    "grazing departures": the most violated one is copied into ``grz`` (4,) with its tag returned.
+    Returns (kind, tag, frac, g0, g1, grz_tag, walk_ok); a plane event's plane is copied into evp (4,).
+    """
+    best = 2.0
+    kind = EV_NONE
+    tag = 0
+    bg0 = 0.0
+    bg1 = 0.0
+    grz_tag = 0
+    grz_g = eps_x
+    g1t = y1[6] - max_time
+    if g1t > eps_t:
+        g0t = y0[6] - max_time
+        best = -g0t / (g1t - g0t) if g0t < 0.0 else 0.0
+        kind = EV_TIME
+        bg0 = g0t
+        bg1 = g1t
+    n_planes = bplanes.shape[0]
+    walk_ok = True
+    extra = 0
+    face = -1
+    cell1 = cell
+    if media[0] == MEDIA_MESH:
+        cell1, face, _ = walk(media[3], media[4], cell, y1, eps_x)
+        walk_ok = face != WALK_FAILED
+        if face >= 0:
+            extra = 1
+    for j in range(n_planes + extra):
+        pl = bplanes[j] if j < n_planes else media[3][cell1, face]
+        g1 = _plane_g(pl, y1)
+        if not (g1 > eps_x):
+            continue
+        g0 = _plane_g(pl, y0)
+        pm = pl[0] * y0[3] + pl[1] * y0[4] + pl[2] * y0[5]
+        jtag = btags[j] if j < n_planes else media[4][cell1, face]
+        if g0 >= -eps_x and pm <= 0.0:
+            if g1 > grz_g:
+                grz_g = g1
+                grz_tag = jtag
+                for i in range(4):
+                    grz[i] = pl[i]
+            continue
+        f = -g0 / (g1 - g0) if g0 < 0.0 else 0.0
+        if f < best:
+            best = f
+            kind = EV_PLANE
+            tag = jtag
+            bg0 = g0
+            bg1 = g1
+            for i in range(4):
+                evp[i] = pl[i]
+    return kind, tag, best, bg0, bg1, grz_tag, walk_ok
+
+
+@nb.njit(**NJIT_FLAGS)
+def _event_rate(kind, pl, y, c_ref):
+    """d g / d sigma of the event function along the ray: m.p for a plane, n^2 / c_ref ~ |p|^2 / c_ref for t."""
+    if kind == EV_TIME:
+        return (y[3] * y[3] + y[4] * y[4] + y[5] * y[5]) / c_ref
+    return pl[0] * y[3] + pl[1] * y[4] + pl[2] * y[5]
+
+
+@nb.njit(**NJIT_FLAGS)
+def _first_guess(method, kind, pl, y0, y1, h, g0, g1, c_ref):
+    """First landing guess in [0, h]: the chord for Euler (its x and t are linear in h), otherwise the
+    root of the cubic Hermite dense output of g over the step (values and sigma-rates at both ends)."""
+    if g0 >= 0.0:
+        return 0.0
+    f = -g0 / (g1 - g0)
+    if method == METHOD_EULER:
+        return f * h
+    d0 = h * _event_rate(kind, pl, y0, c_ref)
+    d1 = h * _event_rate(kind, pl, y1, c_ref)
+    lo = 0.0
+    hi = 1.0
+    u = f
+    for _ in range(50):  # safeguarded Newton on the cubic (no right-hand-side evaluations)
+        u2 = u * u
+        u3 = u2 * u
+        gu = (2 * u3 - 3 * u2 + 1) * g0 + (u3 - 2 * u2 + u) * d0 + (3 * u2 - 2 * u3) * g1 + (u3 - u2) * d1
+        du = (6 * u2 - 6 * u) * g0 + (3 * u2 - 4 * u + 1) * d0 + (6 * u - 6 * u2) * g1 + (3 * u2 - 2 * u) * d1
+        if gu > 0.0:
+            hi = u
+        else:
+            lo = u
+        nxt = u - gu / du
+        if not (nxt > lo and nxt < hi):
+            nxt = 0.5 * (lo + hi)
+        if abs(nxt - u) <= 1e-15:
+            u = nxt
+            break
+        u = nxt
+    return u * h
+
+
+@nb.njit(**NJIT_FLAGS)
+def _land(method, media, cell, y0, k1, lo, glo, hi, ghi, hk, kind, pl, max_time, eps, y1, knew, yerr, work):
+    """Find h in [lo, hi] with |g(advance(y0, h))| <= eps on the restarted step: one Newton step with the
+    event rate at the landed state as derivative, then secant steps through the last two restarts;
+    regula falsi / bisection inside the bracket ``g(lo) = glo <= 0 < ghi = g(hi)`` whenever a step
+    leaves it. ``hk`` is the first guess.
+
+    Leaves y1 = advance(y0, h). Returns (h, ok, has_knew, restarts).
+    """
+    restarts = 0
+    ok = True
+    has = False
+    h_prev = math.nan
+    g_prev = math.nan
+    for _ in range(MAX_LAND_ITERS):
+        ok, has = advance(method, media, cell, y0, k1, hk, y1, knew, yerr, work)
+        restarts += 1
+        if not ok:
+            break
+        g = _event_g(kind, pl, max_time, y1)
+        if abs(g) <= eps:
+            break
+        if g > 0.0:
+            hi = hk
+            ghi = g
+        else:
+            lo = hk
+            glo = g
+        if restarts == 1:
+            rate = _event_rate(kind, pl, y1, media[9])
+        else:
+            rate = (g - g_prev) / (hk - h_prev)
+        h_prev = hk
+        g_prev = g
+        nxt = hk - g / rate
+        if not (nxt > lo and nxt < hi):
+            nxt = lo + (hi - lo) * (-glo) / (ghi - glo)
+            if not (nxt > lo and nxt < hi):
+                nxt = 0.5 * (lo + hi)
+        if nxt == hk:
+            break
+        hk = nxt
+    return hk, ok, has, restarts
+
+
+@nb.njit(**NJIT_FLAGS)
+def _emit(path_pts, path_t, path_s, base, cap, count, y):
+    if count < cap:
+        k = base + count
+        path_pts[k, 0] = y[0]
+        path_pts[k, 1] = y[1]
+        path_pts[k, 2] = y[2]
+        path_t[k] = y[6]
+        path_s[k] = y[7]
+        return count + 1
+    return count
+
+
+@nb.njit(**NJIT_FLAGS)
+def _emit_interior(y0, k0, y1, k1, h, dt_sample, path_pts, path_t, path_s, base, cap, count, ys):
+    """Samples inside a step longer than dt_sample: cubic Hermite in sigma (x, t, s and their
+    sigma-derivatives at both ends), evenly spaced in sigma like the analytic tracer's."""
+    n_int = int((y1[6] - y0[6]) / dt_sample)
+    if n_int > 2 * cap:
+        n_int = 2 * cap
+    for j in range(1, n_int + 1):
+        u = j / (n_int + 1)
+        h00 = (1.0 + 2.0 * u) * (1.0 - u) * (1.0 - u)
+        h10 = u * (1.0 - u) * (1.0 - u)
+        h01 = u * u * (3.0 - 2.0 * u)
+        h11 = u * u * (u - 1.0)
+        for i in (0, 1, 2, 6, 7):
+            ys[i] = h00 * y0[i] + h10 * h * k0[i] + h01 * y1[i] + h11 * h * k1[i]
+        count = _emit(path_pts, path_t, path_s, base, cap, count, ys)
+    return count
+
+
+@nb.njit(**NJIT_FLAGS)
+def _reflect(pl, y, k, reflections, max_reflections):
+    """Specular reflection p' = p - 2 (p.m) m off plane ``pl`` (k[0:3] = p kept in step).
+
+    Returns (status, reflections): REFLECTION_LIMIT (no reflection; the ray stops on the face) when
+    ``max_reflections`` were already made.
+    """
+    if reflections >= max_reflections:
+        return STATUS_REFLECTION_LIMIT, reflections
+    pm = pl[0] * y[3] + pl[1] * y[4] + pl[2] * y[5]
+    if pm > 0.0:
+        for i in range(3):
+            y[3 + i] -= 2.0 * pm * pl[i]
+            k[i] = y[3 + i]
+    return STATUS_RUNNING, reflections + 1
+
+
+@nb.njit(**NJIT_FLAGS)
+def _finite(y):
+    for i in range(NY):
+        if not math.isfinite(y[i]):
+            return False
+    return True
+
+
+@nb.njit(**NJIT_FLAGS)
+def trace_one(method, media, bplanes, btags, x_start, d_start, cell_start, max_time, max_reflections, max_steps,
+              step_m, tol, renormalize, record, dt_sample, path_pts, path_t, path_s, base, cap, out_state,
+              out_counts):
+    """Integrate one ray. out_state (8,): x, y, z, dx, dy, dz, time_s, length_m.
+
+    out_counts (8,): status, reflections, cell crossings, accepted steps, restarts, rejected steps,
+    right-hand-side evaluations, path samples.
+    """
+    y0 = np.zeros(NY)
+    y1 = np.zeros(NY)
+    k1 = np.zeros(NY)
+    knew = np.zeros(NY)
+    yerr = np.zeros(NY)
+    ys = np.zeros(NY)
+    work = np.zeros((WORK_ROWS, NY))
+    evp = np.zeros(4)
+    grz = np.zeros(4)
+    g = np.zeros(3)
+    status = STATUS_RUNNING
+    reflections = 0
+    crossings = 0
+    steps = 0
+    restarts = 0
+    rejected = 0
+    evals = 0
+    count = 0
+    cell = cell_start
+    nrm = math.sqrt(d_start[0] ** 2 + d_start[1] ** 2 + d_start[2] ** 2)
+    for i in range(3):
+        y0[i] = x_start[i]
+    eps_t = TIME_LAND_REL * max(1.0, max_time)
+    n0 = math.nan
+    if media[0] != MEDIA_MESH or cell >= 0:
+        n0 = media_n(media, cell, y0, g)
+    if not (n0 > 0.0 and math.isfinite(n0) and nrm > 0.0):
+        status = STATUS_LOST
+    else:
+        for i in range(3):
+            y0[3 + i] = n0 * d_start[i] / nrm
+        eps0 = LAND_REL * (1.0 + max(abs(y0[0]), abs(y0[1]), abs(y0[2])))
+        for j in range(bplanes.shape[0]):
+            if _plane_g(bplanes[j], y0) > eps0:
+                status = STATUS_LOST  # origin outside the domain
+        if not rhs(media, cell, y0, k1):
+            status = STATUS_LOST
+        evals += 1
+    if record:
+        count = _emit(path_pts, path_t, path_s, base, cap, count, y0)
+    t_last = 0.0
+    h = step_m / n0 if n0 > 0.0 else 0.0
+    h_next = h
+    n_per = _evals(method)
+    while status == STATUS_RUNNING:
+        if steps >= max_steps:
+            status = STATUS_STEP_LIMIT
+            break
+        # ---- trial step (accepted step map into y1) ----
+        ok = True
+        has = False
+        if method == METHOD_EULER or method == METHOD_RK4:
+            h = step_m / k1[7]
+            ok, has = advance(method, media, cell, y0, k1, h, y1, knew, yerr, work)
+            evals += n_per
+        else:
+            h = h_next
+            run = 0
+            while True:
+                ok, has = advance(method, media, cell, y0, k1, h, y1, knew, yerr, work)
+                evals += n_per
+                err = error_norm(yerr, tol) if ok else math.inf
+                if method == METHOD_EULER_ADAPTIVE:
+                    if err <= 1.0:
+                        h_next = 2.0 * h if err < DOUBLING_GROW_BELOW else h
+                        break
+                    h *= 0.5
+                else:
+                    if err <= 1.0:
+                        fac = FAC_MAX if err == 0.0 else min(FAC_MAX, max(FAC_MIN, SAFETY * err ** -0.2))
+                        h_next = h * (min(fac, 1.0) if run > 0 else fac)
+                        break
+                    h *= FAC_MIN if not (err < math.inf) else max(FAC_MIN, SAFETY * err ** -0.2)
+                rejected += 1
+                run += 1
+                if run > MAX_REJECTS_IN_A_ROW or not (h > 0.0):
+                    ok = False
+                    break
+        if not ok:
+            status = STATUS_LOST
+            break
+        steps += 1
+        # ---- boundary and time events: restart the step to land on the earliest one ----
+        eps_x = LAND_REL * (1.0 + max(abs(y1[0]), abs(y1[1]), abs(y1[2])))
+        kind, tag, f, g0, g1, grz_tag, walk_ok = _detect(y0, y1, bplanes, btags, media, cell, max_time,
+                                                         eps_x, eps_t, evp, grz)
+        ev_kind = EV_NONE
+        ev_tag = 0
+        h_end = h
+        moved = False
+        for _ in range(MAX_RETARGETS + 1):
+            if kind == EV_NONE or not (ok and walk_ok):
+                break
+            hk = _first_guess(method, kind, evp, y0, y1, h_end, g0, g1, media[9])
+            h_end, ok, has, nr = _land(method, media, cell, y0, k1, 0.0, min(g0, 0.0), h_end, g1, hk, kind,
+                                       evp, max_time, eps_t if kind == EV_TIME else eps_x, y1, knew, yerr, work)
+            restarts += nr
+            evals += nr * n_per
+            ev_kind = kind
+            ev_tag = tag
+            if kind == EV_TIME:
+                y1[6] = max_time
+            else:
+                gg = _plane_g(evp, y1)
+                for i in range(3):
+                    y1[i] -= gg * evp[i]
+                moved = True
+            # an earlier crossing of another boundary revealed by the landing re-targets it
+            kind, tag, f, g0, g1, _, walk_ok = _detect(y0, y1, bplanes, btags, media, cell, max_time,
+                                                       eps_x, eps_t, evp, ys)
+        if not (ok and walk_ok):
+            status = STATUS_LOST
+            break
+        # ---- grazing departure from a plane the ray sits on: interior re-entry, else slide ----
+        slide_tag = 0
+        g_end = _plane_g(grz, y1)
+        if grz_tag != 0 and g_end > eps_x:
+            hk = h_end
+            glo = 0.0
+            found = False
+            for _ in range(MAX_GRAZE_HALVINGS):
+                hk *= 0.5
+                ok, has = advance(method, media, cell, y0, k1, hk, y1, knew, yerr, work)
+                restarts += 1
+                evals += n_per
+                glo = _plane_g(grz, y1)
+                if not ok or glo < -eps_x:
+                    found = ok
+                    break
+            if found:  # the ray re-enters and crosses the plane again inside the step: land there
+                h_end, ok, has, nr = _land(method, media, cell, y0, k1, hk, glo, h_end, g_end,
+                                           hk + (h_end - hk) * (-glo) / (g_end - glo), EV_PLANE, grz, max_time,
+                                           eps_x, y1, knew, yerr, work)
+                ev_kind = EV_PLANE
+                ev_tag = grz_tag
+                for i in range(4):
+                    evp[i] = grz[i]
+            else:  # it curves out of the plane it grazes: slide (project, reflect the outward part)
+                ok, has = advance(method, media, cell, y0, k1, h_end, y1, knew, yerr, work)
+                nr = 1
+                slide_tag = grz_tag
+            restarts += nr
+            evals += nr * n_per
+            gg = _plane_g(grz, y1)
+            for i in range(3):
+                y1[i] -= gg * grz[i]
+            moved = True
+        if not (ok and _finite(y1)):
+            status = STATUS_LOST
+            break
+        # ---- accept: f(y1), path samples, cell, then the events ----
+        if not (has and not moved):
+            if not rhs(media, cell, y1, knew):
+                status = STATUS_LOST
+                break
+            evals += 1
+        if record and y1[6] - y0[6] > dt_sample:
+            count = _emit_interior(y0, k1, y1, knew, h_end, dt_sample, path_pts, path_t, path_s, base, cap,
+                                   count, ys)
+        for i in range(NY):
+            k1[i] = knew[i]
+            y0[i] = y1[i]
+        if media[0] == MEDIA_MESH:
+            cell_new, face, mv = walk(media[3], media[4], cell, y0, eps_x)
+            if face == WALK_FAILED:
+                status = STATUS_LOST
+                break
+            crossings += mv
+            cell = cell_new
+        if record and y0[6] - t_last >= dt_sample:
+            count = _emit(path_pts, path_t, path_s, base, cap, count, y0)
+            t_last = y0[6]
+        refl_before = reflections
+        if ev_kind == EV_TIME or y0[6] >= max_time - eps_t:
+            y0[6] = max_time
+            status = STATUS_TIME_LIMIT
+        elif ev_kind == EV_PLANE and ev_tag == BOUNDARY_OPEN:
+            status = STATUS_EXITED
+        elif ev_kind == EV_PLANE:
+            status, reflections = _reflect(evp, y0, k1, reflections, max_reflections)
+        if status == STATUS_RUNNING and slide_tag == BOUNDARY_OPEN:
+            status = STATUS_EXITED
+        elif status == STATUS_RUNNING and slide_tag == BOUNDARY_REFLECT:
+            if grz[0] * y0[3] + grz[1] * y0[4] + grz[2] * y0[5] > 0.0:
+                status, reflections = _reflect(grz, y0, k1, reflections, max_reflections)
+        if record and reflections > refl_before and y0[6] > t_last:
+            count = _emit(path_pts, path_t, path_s, base, cap, count, y0)
+            t_last = y0[6]
+        if renormalize and status == STATUS_RUNNING:
+            pn = math.sqrt(y0[3] ** 2 + y0[4] ** 2 + y0[5] ** 2)
+            for i in range(3):
+                y0[3 + i] *= k1[7] / pn
+                k1[i] = y0[3 + i]
+    if record and (count == 0 or y0[6] > t_last):
+        count = _emit(path_pts, path_t, path_s, base, cap, count, y0)
+    pn = math.sqrt(y0[3] ** 2 + y0[4] ** 2 + y0[5] ** 2)
+    for i in range(3):
+        out_state[i] = y0[i]
+        out_state[3 + i] = y0[3 + i] / pn if pn > 0.0 else d_start[i] / nrm
+    out_state[6] = y0[6]
+    out_state[7] = y0[7]
+    out_counts[0] = status
+    out_counts[1] = reflections
+    out_counts[2] = crossings
+    out_counts[3] = steps
+    out_counts[4] = restarts
+    out_counts[5] = rejected
+    out_counts[6] = evals
+    out_counts[7] = count
+
+
+@nb.njit(**PARALLEL_FLAGS)
+def trace_rays_numerical(method, media, bplanes, btags, origins, directions, start_cells, max_time,
+                         max_reflections, max_steps, step_m, tol, renormalize, record, dt_sample, path_cap,
+                         path_pts, path_t, path_s, out_state, out_counts):
+    """All rays in parallel (prange); ray i owns out_state[i], out_counts[i] and the path slice
+    ``[i * path_cap, (i + 1) * path_cap)``: no shared writes, deterministic results."""
+    for i in nb.prange(origins.shape[0]):
+        trace_one(method, media, bplanes, btags, origins[i], directions[i], start_cells[i], max_time,
+                  max_reflections, max_steps, step_m, tol, renormalize, record, dt_sample, path_pts, path_t,
+                  path_s, i * path_cap, path_cap, out_state[i], out_counts[i])
+
+
+def boundary_planes(domain_min: np.ndarray, domain_max: np.ndarray, ground_z: float, top: str
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Explicit boundary planes ``(m, h)`` (inside: m.x <= h) and their tags, (6, 4) float64 / (6,) int64.
+
+    Ground z = ground_z (reflecting), top z = domain_max[2] (open or reflecting), four open sides.
+    """
+    lo = np.asarray(domain_min, dtype=np.float64).reshape(3)
+    hi = np.asarray(domain_max, dtype=np.float64).reshape(3)
+    if top not in ("open", "reflect"):
+        raise ValueError(f"top must be 'open' or 'reflect', got {top!r}")
+    if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi)) and np.all(hi > lo)):
+        raise ValueError(f"domain_min {lo.tolist()} must be finite and below domain_max {hi.tolist()}")
+    if not (math.isfinite(ground_z) and ground_z < hi[2]):
+        raise ValueError(f"ground_z {ground_z} must be finite and below the top {hi[2]}")
+    planes = np.array([
+        [0.0, 0.0, -1.0, -ground_z],
+        [0.0, 0.0, 1.0, hi[2]],
+        [-1.0, 0.0, 0.0, -lo[0]],
+        [1.0, 0.0, 0.0, hi[0]],
+        [0.0, -1.0, 0.0, -lo[1]],
+        [0.0, 1.0, 0.0, hi[1]],
+    ])
+    tags = np.array([BOUNDARY_REFLECT, BOUNDARY_REFLECT if top == "reflect" else BOUNDARY_OPEN]
+                    + [BOUNDARY_OPEN] * 4, dtype=np.int64)
+    return planes, tags
+
+
+def trace_numerical(
+    method: str,
+    media: str,
+    *,
+    mesh: CellMesh | None = None,
+    quantity: str = "n2",
+    exact_spec: tuple[int, np.ndarray] | None = None,
+    c_ref: float = 340.0,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    start_cells: np.ndarray | None = None,
+    max_time_s: float,
+    max_reflections: int = 50,
+    max_steps: int = 10_000_000,
+    step_m: float = 1.0,
+    tolerance: float = 1e-8,
+    path_samples: int = 0,
+    domain_min: np.ndarray,
+    domain_max: np.ndarray,
+    ground_z: float = 0.0,
+    top: str = "open",
+    renormalize: bool = False,
+    stats: dict[str, np.ndarray] | None = None,
+) -> tuple[TraceResult, np.ndarray]:
+    """Trace rays by numerical integration of the ray ODE; returns ``(TraceResult, restarts)``.
+
+    method : "euler" | "rk4" (fixed steps of about ``step_m`` metres of arc: h = step_m / n(x) in
+        sigma) or "euler_adaptive" | "dopri5" (adaptive; ``step_m`` is the first step, ``tolerance``
+        the absolute local error per step, metres for x and units of n for p).
+    media : "exact" (closed-form profile, ``exact_spec = exact_media.exact_media_spec(profile)``) or
+        "mesh" (the CellMesh's linear model of the traced ``quantity`` "n2" | "c" | "n").
+    origins, directions : (n, 3) float64, metres / any non-zero length, world frame.
+    start_cells : (n,) int64 cells containing the origins (mesh media; located when None; -1 -> lost).
+    domain_min, domain_max : (3,) metres: open sides, top at domain_max[2]; the ground is z = ground_z.
+    path_samples : samples per ray (0: none), as engine.tracer.trace (Hermite-interpolated inside long steps).
+    stats : if a dict is given it receives (n,) int64 arrays "rejected" (rejected trial steps) and
+        "evaluations" (right-hand-side evaluations).
+    Returns the TraceResult (launch angles NaN, ``crossings`` = mesh cells crossed, ``nudges`` = 0,
+    ``steps`` = accepted steps) and ``restarts`` (n,) int64: steps re-taken with a reduced length to
+    land on a boundary or on the time limit.
+    """
+    if method not in METHOD_CODES:
+        raise ValueError(f"unknown method {method!r}; expected one of {sorted(METHOD_CODES)}")
+    med = make_media(media, exact_spec=exact_spec, mesh=mesh, quantity=quantity, c_ref=float(c_ref))
+    origins = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3)
+    directions = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
+    n = origins.shape[0]
+    if directions.shape[0] != n:
+        raise ValueError("origins and directions must have the same length")
+    if start_cells is None:
+        if media == "mesh":
+            uniq, inv = np.unique(origins, axis=0, return_inverse=True)
+            start_cells = locate_points(mesh, uniq)[inv.reshape(-1)]
+        else:
+            start_cells = np.zeros(n, dtype=np.int64)
+    start_cells = np.ascontiguousarray(start_cells, dtype=np.int64).reshape(-1)
+    if start_cells.shape[0] != n:
+        raise ValueError("start_cells must have one entry per ray")
+    if not (max_time_s > 0.0 and math.isfinite(max_time_s)):
+        raise ValueError("max_time_s must be positive and finite")
+    if not (step_m > 0.0 and math.isfinite(step_m)):
+        raise ValueError("step_m must be positive and finite")
+    if not (tolerance > 0.0):
+        raise ValueError("tolerance must be positive")
+    if max_reflections < 0 or max_steps < 1 or path_samples < 0:
+        raise ValueError("max_reflections and path_samples must be >= 0, max_steps >= 1")
+    bplanes, btags = boundary_planes(domain_min, domain_max, float(ground_z), top)
+    record = path_samples > 0
+    cap = path_capacity(path_samples, max_reflections) if record else 1
+    n_slots = n * cap if record else 1
+    path_pts = np.zeros((n_slots, 3))
+    path_t = np.zeros(n_slots)
+    path_s = np.zeros(n_slots)
+    out_state = np.zeros((n, 8))
+    out_counts = np.zeros((n, 8), dtype=np.int64)
+    trace_rays_numerical(
+        METHOD_CODES[method], med, bplanes, btags, origins, directions, start_cells, float(max_time_s),
+        int(max_reflections), int(max_steps), float(step_m), float(tolerance), bool(renormalize), record,
+        float(max_time_s) / max(path_samples, 1), cap, path_pts, path_t, path_s, out_state, out_counts,
+    )
+    paths = None
+    if record:
+        counts = out_counts[:, 7]
+        offsets = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(counts, out=offsets[1:])
+        keep = (np.arange(cap)[None, :] < counts[:, None]).reshape(-1)
+        paths = RayPaths(offsets=offsets, points=path_pts[keep], time_s=path_t[keep], length_m=path_s[keep])
+    if stats is not None:
+        stats["rejected"] = out_counts[:, 5].copy()
+        stats["evaluations"] = out_counts[:, 6].copy()
+    nan = np.full(n, np.nan)
+    result = TraceResult(
+        source=np.zeros(n, dtype=np.int64),
+        elevation_deg=nan.copy(),
+        azimuth_deg=nan.copy(),
+        position=out_state[:, 0:3].copy(),
+        direction=out_state[:, 3:6].copy(),
+        time_s=out_state[:, 6].copy(),
+        length_m=out_state[:, 7].copy(),
+        reflections=out_counts[:, 1].copy(),
+        status=out_counts[:, 0].astype(np.int8),
+        crossings=out_counts[:, 2].copy(),
+        nudges=np.zeros(n, dtype=np.int64),
+        paths=paths,
+        steps=out_counts[:, 3].copy(),
+    )
+    return result, out_counts[:, 4].copy()

@@ -1,0 +1,507 @@
+"""Terrain-following conforming tetrahedral media mesh: terrain, buildings and barriers as mesh boundaries.
+
+``build_terrain_mesh`` turns ``SceneSurfaces`` (engine/surfaces.py) into a CellMesh whose ground, walls
+and roofs are reflecting boundary faces (BOUNDARY_REFLECT, material index in ``face_material``):
+
+1. 2D point set over the domain's xy box (triangulate2d.py): box sides, footprint vertices and edge
+   samples, terrain samples thinned to the horizontal spacing d(x, y) and a graded hexagonal lattice; a
+   conforming Delaunay triangulation in which every footprint edge is a union of triangle edges.
+2. Ground height at every 2D vertex: bilinear in a HeightGrid, barycentric in a TriangleSurface,
+   domain_min z without terrain. Mesh vertices lie on the input surface exactly (up to rounding); ground
+   faces are the planar triangles between them (exact for planar terrain).
+3. Terrain-following layers (prisms.py): sigma levels graded by the vertical sizing, one level pinned to
+   each roof over its footprint's columns. Each triangular prism between two levels is split into 3 tets
+   with a consistent diagonal rule; prisms inside a footprint below its roof are removed.
+4. Face hash for neighbours, planes from sorted vertex ids, boundary tags: ground (level-0 faces) and
+   building faces (between a kept and a removed prism) BOUNDARY_REFLECT with the terrain / building
+   material; box sides BOUNDARY_OPEN; the top open or reflecting. Prisms in Morton order.
+5. Media exactly as tets.py: vertex values m_v = quantity_at(points), per-cell reference = centroid,
+   media_ref = mean of the 4 vertex values, gradient by least squares on the face neighbours (Green-Gauss
+   fallback) or each cell's own P1 gradient.
+
+Buildings. A footprint is a vertical prism standing on the terrain: roof height R = base_z + height_m
+(base_z default: the lowest terrain height under the polygon, over the input terrain samples inside it
+and the 2D mesh vertices on or inside it). The terrain is *not* flattened under a footprint: the mesh
+keeps the exact terrain heights at the footprint's vertices and pins the roof as a level of their
+columns (prisms.py), so the roof is flat, the walls are vertical (they span from the terrain up to R)
+and the ground outside stays exactly on the input surface. The terrain must stay below R under the
+footprint (ValueError otherwise). Footprints must be simple, pairwise disjoint and strictly inside the
+domain's xy box. Closed obstacle meshes (``SceneSurfaces.obstacles``) are not supported here.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import NamedTuple
+
+import numpy as np
+
+from bentray.engine.constants import BOUNDARY_OPEN, BOUNDARY_REFLECT
+from bentray.engine.errors import MeshBuildError
+from bentray.engine.mesh.cells import CellMesh
+from bentray.engine.mesh.fcc import separated_from
+from bentray.engine.mesh.gradients import green_gauss_gradients, lsq_gradients
+from bentray.engine.mesh.prisms import (
+    check_sigma_levels,
+    column_levels,
+    face_planes,
+    face_vertices,
+    match_faces,
+    morton_prism_order,
+    prism_tets,
+    roof_levels,
+    sigma_levels,
+)
+from bentray.engine.mesh.tets import DEGENERATE_VOL_REL, GRADIENT_METHODS, TetMesh
+from bentray.engine.mesh.triangulate2d import (
+    SEGMENT_SEPARATION,
+    SIDE_CLEARANCE,
+    TriangleLocator,
+    box_side_samples,
+    checked_spacing_2d,
+    conforming_delaunay,
+    footprint_samples,
+    greedy_thin,
+    hex_fill,
+    in_diametral_disks,
+    points_in_polygon,
+    segments_intersect,
+    stride_thin_grid,
+)
+from bentray.engine.surfaces import Footprint, HeightGrid, SceneSurfaces, TriangleSurface
+
+# A point counts as inside a cell when no face plane is violated by more than LOCATE_TOL_REL * cell size
+# (as cells.locate_points): far above plane rounding, far below any cell.
+LOCATE_TOL_REL = 1e-9
+
+
+# ---------------------------------------------------------------------------------------------------
+# Terrain
+# ---------------------------------------------------------------------------------------------------
+class _Terrain(NamedTuple):
+    height: Callable[[np.ndarray], np.ndarray]  # xy (N, 2) -> z (N,)
+    material: Callable[[np.ndarray], np.ndarray]  # xy (N, 2) -> material index (N,)
+    samples: np.ndarray  # (M, 2) input sample positions inside the box (grid nodes, TIN vertices)
+    grid: HeightGrid | None
+
+
+def _bilinear(grid: HeightGrid, xy: np.ndarray) -> np.ndarray:
+    x, y, z = grid.x, grid.y, grid.z
+    i = np.clip(np.searchsorted(x, xy[:, 0], side="right") - 1, 0, len(x) - 2)
+    j = np.clip(np.searchsorted(y, xy[:, 1], side="right") - 1, 0, len(y) - 2)
+    tx = (xy[:, 0] - x[i]) / (x[i + 1] - x[i])
+    ty = (xy[:, 1] - y[j]) / (y[j + 1] - y[j])
+    return ((1.0 - tx) * (1.0 - ty) * z[j, i] + tx * (1.0 - ty) * z[j, i + 1]
+            + (1.0 - tx) * ty * z[j + 1, i] + tx * ty * z[j + 1, i + 1])  # fmt: skip
+
+
+def _terrain(surface: HeightGrid | TriangleSurface | None, lo: np.ndarray, hi: np.ndarray,
+             spacing_fn: Callable) -> _Terrain:  # fmt: skip
+    inside = lambda p: np.all((p > lo[:2]) & (p < hi[:2]), axis=1)  # noqa: E731
+    if surface is None:
+        return _Terrain(lambda xy: np.full(len(xy), lo[2]), lambda xy: np.zeros(len(xy), dtype=np.int64),
+                        np.empty((0, 2)), None)  # fmt: skip
+    if isinstance(surface, HeightGrid):
+        x, y, z = (np.asarray(a, dtype=np.float64) for a in (surface.x, surface.y, surface.z))
+        if x.ndim != 1 or y.ndim != 1 or len(x) < 2 or len(y) < 2 or z.shape != (len(y), len(x)):
+            raise ValueError("HeightGrid needs x (nx >= 2), y (ny >= 2) and z of shape (ny, nx)")
+        if np.any(np.diff(x) <= 0) or np.any(np.diff(y) <= 0) or not np.all(np.isfinite(z)):
+            raise ValueError("HeightGrid x and y must increase strictly and z be finite")
+        if x[0] > lo[0] or x[-1] < hi[0] or y[0] > lo[1] or y[-1] < hi[1]:
+            raise ValueError("the HeightGrid must cover the domain's xy box")
+        grid = HeightGrid(x, y, z, surface.material, surface.default_material)
+        mat = None if surface.material is None else np.asarray(surface.material, dtype=np.int64)
+        if mat is not None and mat.shape != (len(y) - 1, len(x) - 1):
+            raise ValueError("HeightGrid.material must have shape (ny - 1, nx - 1)")
+
+        def material(xy: np.ndarray) -> np.ndarray:
+            if mat is None:
+                return np.full(len(xy), int(surface.default_material), dtype=np.int64)
+            i = np.clip(np.searchsorted(x, xy[:, 0], side="right") - 1, 0, len(x) - 2)
+            j = np.clip(np.searchsorted(y, xy[:, 1], side="right") - 1, 0, len(y) - 2)
+            return mat[j, i]
+
+        xs, ys = x[(x > lo[0]) & (x < hi[0])], y[(y > lo[1]) & (y < hi[1])]
+        nodes = stride_thin_grid(xs, ys, spacing_fn) if len(xs) > 1 and len(ys) > 1 else np.empty((0, 2))
+        return _Terrain(lambda xy: _bilinear(grid, xy), material, nodes, grid)
+    if isinstance(surface, TriangleSurface):
+        v = np.asarray(surface.vertices, dtype=np.float64)
+        tri = np.asarray(surface.triangles, dtype=np.int64)
+        if v.ndim != 2 or v.shape[1] != 3 or tri.ndim != 2 or tri.shape[1] != 3 or not np.all(np.isfinite(v)):
+            raise ValueError("TriangleSurface needs vertices (V, 3) finite and triangles (T, 3)")
+        loc = TriangleLocator(v[:, :2], tri)
+        tmat = (np.full(len(tri), int(surface.default_material), dtype=np.int64) if surface.material is None
+                else np.asarray(surface.material, dtype=np.int64))  # fmt: skip
+
+        def height(xy: np.ndarray) -> np.ndarray:
+            t, w = loc.locate(xy)
+            if np.any(t < 0):
+                raise ValueError(f"{int((t < 0).sum())} mesh points are not over the TriangleSurface")
+            return np.einsum("ni,ni->n", w, v[tri[t], 2])
+
+        def material(xy: np.ndarray) -> np.ndarray:
+            t, _ = loc.locate(xy)
+            return tmat[np.maximum(t, 0)]
+
+        cand = v[inside(v[:, :2]), :2]
+        cand = cand[greedy_thin(cand, spacing_fn(cand))] if len(cand) else cand
+        return _Terrain(height, material, cand, None)
+    raise ValueError(f"unsupported terrain type {type(surface).__name__}")
+
+
+def _check_footprints(footprints: list[Footprint], lo: np.ndarray, hi: np.ndarray) -> list[np.ndarray]:
+    """Validate footprints (simple, disjoint, strictly inside the box, positive height); return polygons."""
+    polys = []
+    for f, fp in enumerate(footprints):
+        name = fp.name or f"#{f}"
+        p = np.asarray(fp.polygon, dtype=np.float64)
+        if p.ndim != 2 or p.shape[1] != 2 or len(p) < 3 or not np.all(np.isfinite(p)):
+            raise ValueError(f"footprint {name}: polygon must be (k >= 3, 2) finite")
+        if not (np.isfinite(fp.height_m) and fp.height_m > 0):
+            raise ValueError(f"footprint {name}: height_m must be positive")
+        if not np.all((p > lo[:2]) & (p < hi[:2])):
+            raise ValueError(f"footprint {name}: polygon must lie strictly inside the domain's xy box")
+        q = np.roll(p, -1, axis=0)
+        if np.any(np.all(p == q, axis=1)):
+            raise ValueError(f"footprint {name}: repeated consecutive vertex")
+        hit = segments_intersect(p, q, p, q)
+        k = len(p)
+        idx = np.arange(k)
+        hit[idx, idx] = False
+        hit[idx, (idx + 1) % k] = False
+        hit[(idx + 1) % k, idx] = False
+        if hit.any():
+            raise ValueError(f"footprint {name}: polygon is not simple (edges cross or touch)")
+        polys.append(p)
+    boxes = np.array([[p[:, 0].min(), p[:, 1].min(), p[:, 0].max(), p[:, 1].max()] for p in polys]).reshape(-1, 4)
+    over = ((boxes[:, None, 0] <= boxes[None, :, 2]) & (boxes[None, :, 0] <= boxes[:, None, 2])
+            & (boxes[:, None, 1] <= boxes[None, :, 3]) & (boxes[None, :, 1] <= boxes[:, None, 3]))  # fmt: skip
+    for a, b in zip(*np.nonzero(np.triu(over, 1)), strict=True):
+        pa, pb = polys[a], polys[b]
+        crossing = segments_intersect(pa, np.roll(pa, -1, axis=0), pb, np.roll(pb, -1, axis=0)).any()
+        if crossing or points_in_polygon(pa[:1], pb)[0] or points_in_polygon(pb[:1], pa)[0]:
+            raise ValueError(f"footprints {footprints[a].name or a} and {footprints[b].name or b} overlap")
+    return polys
+
+
+# ---------------------------------------------------------------------------------------------------
+# Builder
+# ---------------------------------------------------------------------------------------------------
+def build_terrain_mesh(
+    surfaces: SceneSurfaces,
+    domain_min,
+    domain_max,
+    quantity_at: Callable[[np.ndarray], np.ndarray],
+    *,
+    horizontal_spacing: Callable[[np.ndarray], np.ndarray] | float,
+    layer_levels: np.ndarray | None = None,
+    vertical_spacing: Callable[[np.ndarray], np.ndarray] | float | None = None,
+    top: str = "open",
+    gradient_method: str = "lsq",
+    max_points_2d: int = 2_000_000,
+) -> TetMesh:
+    """Terrain-following conforming tetrahedral CellMesh of the domain above the terrain minus buildings.
+
+    Parameters
+    ----------
+    surfaces : terrain (HeightGrid, TriangleSurface or None = flat ground at domain_min z), footprints and
+        materials. The terrain must cover the domain's xy box and lie in [domain_min z, domain_max z).
+    domain_min, domain_max : (3,) metres, world frame, z up. The top of the mesh is z = domain_max z.
+    quantity_at : callable, xyz (N, 3) float64 metres -> traced quantity m (N,) (n^2, c or n).
+    horizontal_spacing : target triangle edge length d (metres): a constant or a callable xy (N, 2) -> (N,),
+        evaluated at ground level (the sizing field of physics.md section 6).
+    layer_levels : sigma levels (L + 1,), 0 = s_0 < ... < s_L = 1: z_k = g + s_k (H - g) (prisms.py).
+    vertical_spacing : alternatively the layer thickness dz (metres), a constant or a callable of the
+        height above ground zeta (M,) -> (M,) on the tallest column (lowest ground); levels follow it.
+        Exactly one of layer_levels / vertical_spacing must be given.
+    top : "open" or "reflect" (tag of the faces on z = domain_max z); sides are always BOUNDARY_OPEN.
+    gradient_method : "lsq", "lsq_unweighted" or "green_gauss" (as tets.build_tet_mesh).
+    max_points_2d : raise ValueError if the horizontal spacing asks for more 2D points than this.
+
+    Returns
+    -------
+    TetMesh with K = 4 faces per cell (face i opposite vertex i), tets positively oriented; the 3 tets of
+    a prism are consecutive cells. ``points`` (P, 3) are layer-major: point k * n2 + v is 2D vertex v at
+    level k (points inside buildings below the roof are unused). ``stats`` holds n_vertices_2d,
+    n_triangles_2d, n_layers, n_points, n_unused_points, n_cells, n_cells_removed (inside buildings),
+    sigma_levels, triangulation (recovery rounds, split points, smallest 2D angles), roofs (per footprint:
+    base_z, roof_z, level), volume_min_m3, volume_total_m3, min_dihedral_deg, aspect, longest_edge_m,
+    n_boundary_faces (ground, walls, roofs, top, sides, reflect, open), n_lsq_fallback and build_time_s.
+
+    Raises
+    ------
+    ValueError on bad arguments; MeshBuildError when the build fails its own checks.
+    """
+    t0 = time.perf_counter()
+    lo = np.asarray(domain_min, dtype=np.float64).reshape(3)
+    hi = np.asarray(domain_max, dtype=np.float64).reshape(3)
+    if not np.all(hi > lo):
+        raise ValueError(f"domain_max {hi} must exceed domain_min {lo} on every axis")
+    if top not in ("open", "reflect"):
+        raise ValueError(f"top must be 'open' or 'reflect', got {top!r}")
+    if gradient_method not in GRADIENT_METHODS:
+        raise ValueError(f"gradient_method must be one of {GRADIENT_METHODS}, got {gradient_method!r}")
+    if (layer_levels is None) == (vertical_spacing is None):
+        raise ValueError("give exactly one of layer_levels and vertical_spacing")
+    if surfaces.obstacles:
+        raise ValueError("closed obstacle meshes are not supported by the terrain-following mesh")
+    spacing_fn = checked_spacing_2d(horizontal_spacing)
+    polys = _check_footprints(list(surfaces.footprints), lo, hi)
+    terrain = _terrain(surfaces.terrain, lo, hi, spacing_fn)
+
+    # --- 2D point set and conforming triangulation ------------------------------------------------------
+    ring = box_side_samples(lo[:2], hi[:2], spacing_fn)
+    fp_pts, fp_segs, fp_owner = footprint_samples(polys, spacing_fn)
+    segs = fp_segs + len(ring)
+    constraint = np.concatenate([ring, fp_pts])
+
+    def keep_free(p: np.ndarray, others: list[tuple[np.ndarray, float]]) -> np.ndarray:
+        if len(p) == 0:
+            return p
+        d = spacing_fn(p)
+        clear = np.minimum((p - lo[:2]).min(axis=1), (hi[:2] - p).min(axis=1)) >= SIDE_CLEARANCE * d
+        p, d = p[clear], d[clear]
+        for q, factor in others:
+            if len(q) and len(p):
+                ok = separated_from(p, factor * d, q, factor * spacing_fn(q))
+                p, d = p[ok], d[ok]
+        return p[~in_diametral_disks(p, constraint, segs)]
+
+    tsamp = keep_free(terrain.samples, [(fp_pts, SEGMENT_SEPARATION)])
+    lattice = keep_free(hex_fill(lo[:2], hi[:2], spacing_fn, ring, max_points_2d),
+                        [(fp_pts, SEGMENT_SEPARATION), (tsamp, 1.0)])  # fmt: skip
+    pts0 = np.concatenate([constraint, tsamp, lattice])
+    required = np.column_stack([np.arange(len(ring)), np.roll(np.arange(len(ring)), -1)])
+    xy, tris, segs, seg_owner, tri_report = conforming_delaunay(pts0, segs, fp_owner[fp_segs[:, 0]], required)
+    n2, m = len(xy), len(tris)
+    t1 = time.perf_counter()
+
+    # --- footprint membership, ground, roofs, levels ------------------------------------------------------
+    vertex_fp = np.full(n2, -1, dtype=np.int64)
+    vertex_fp[segs.ravel()] = np.repeat(seg_owner, 2)
+    tri_fp = np.full(m, -1, dtype=np.int64)
+    cen = xy[tris].mean(axis=1)
+    for f, poly in enumerate(polys):
+        cand = np.flatnonzero(np.all((cen >= poly.min(axis=0)) & (cen <= poly.max(axis=0)), axis=1))
+        tri_fp[cand[points_in_polygon(cen[cand], poly)]] = f
+    inside_tris = np.flatnonzero(tri_fp >= 0)
+    vertex_fp[tris[inside_tris].ravel()] = np.repeat(tri_fp[inside_tris], 3)
+    ground = terrain.height(xy)
+    if not np.all(np.isfinite(ground)) or ground.min() < lo[2] or ground.max() >= hi[2]:
+        raise ValueError("the terrain must lie in [domain_min z, domain_max z) over the domain")
+    roof_z = np.empty(len(polys))
+    base_z = np.empty(len(polys))
+    for f, (fp, poly) in enumerate(zip(surfaces.footprints, polys, strict=True)):
+        g_f = ground[vertex_fp == f]
+        if fp.base_z is None:
+            s_in = terrain.samples[points_in_polygon(terrain.samples, poly)] if len(terrain.samples) else None
+            if terrain.grid is not None:
+                g = terrain.grid
+                bx = g.x[(g.x >= poly[:, 0].min()) & (g.x <= poly[:, 0].max())]
+                by = g.y[(g.y >= poly[:, 1].min()) & (g.y <= poly[:, 1].max())]
+                gx, gy = np.meshgrid(bx, by)
+                nodes = np.column_stack([gx.ravel(), gy.ravel()])
+                s_in = nodes[points_in_polygon(nodes, poly)]
+            extra = terrain.height(s_in) if s_in is not None and len(s_in) else np.empty(0)
+            base_z[f] = float(np.concatenate([g_f, extra]).min())
+        else:
+            base_z[f] = float(fp.base_z)
+        roof_z[f] = base_z[f] + float(fp.height_m)
+        if not (roof_z[f] < hi[2]) or not np.all(g_f < roof_z[f]):
+            raise ValueError(f"footprint {fp.name or f}: roof z = {roof_z[f]:g} must be above the terrain under "
+                             f"it (max {g_f.max():g}) and below domain_max z")  # fmt: skip
+    if layer_levels is not None:
+        s = check_sigma_levels(layer_levels)
+    else:
+        s = sigma_levels(float(hi[2] - ground.min()), vertical_spacing)
+    n_layers = len(s) - 1
+    roof_k = roof_levels(s, ground, float(hi[2]), vertex_fp, roof_z)
+    z = column_levels(ground, s, float(hi[2]), vertex_fp, roof_z, roof_k)
+    points = np.empty((n_layers + 1, n2, 3))
+    points[:, :, :2] = xy[None]
+    points[:, :, 2] = z
+    points = points.reshape(-1, 3)
+
+    # --- prisms, tets, neighbours, planes -------------------------------------------------------------
+    keep = np.ones((m, n_layers), dtype=bool)
+    if len(inside_tris):
+        keep[inside_tris] = np.arange(n_layers)[None, :] >= roof_k[tri_fp[inside_tris]][:, None]
+    p_tri, p_layer = np.nonzero(keep)
+    width = float(np.sqrt(np.prod(hi[:2] - lo[:2]) / max(m, 1)))
+    order = morton_prism_order(cen[p_tri], p_layer, width)
+    p_tri, p_layer = p_tri[order], p_layer[order]
+    tri_sorted = np.sort(tris, axis=1)
+    ps = xy[tri_sorted]
+    ccw = ((ps[:, 1, 0] - ps[:, 0, 0]) * (ps[:, 2, 1] - ps[:, 0, 1])
+           - (ps[:, 1, 1] - ps[:, 0, 1]) * (ps[:, 2, 0] - ps[:, 0, 0])) > 0  # fmt: skip
+    tets = prism_tets(tri_sorted, ccw, n2, p_tri, p_layer)
+    t = len(tets)
+    faces = face_vertices(tets)
+    nbrs, nbf = match_faces(faces, n2, len(points))
+    planes, qual = face_planes(points, tets, faces, nbrs, nbf)
+    vol, longest = qual["volume"], qual["longest_edge"]
+    if np.any(6.0 * vol <= DEGENERATE_VOL_REL * longest**3):
+        raise MeshBuildError(f"{int((6.0 * vol <= DEGENERATE_VOL_REL * longest**3).sum())} flat tets")
+
+    bc, bf = np.nonzero(nbrs < 0)
+    fv = faces[bc, bf]
+    lay, v2 = fv // n2, fv % n2
+    is_ground = np.all(lay == 0, axis=1)
+    is_top = np.all(lay == n_layers, axis=1)
+    is_side = np.zeros(len(bc), dtype=bool)
+    for ax in (0, 1):
+        for val in (lo[ax], hi[ax]):
+            is_side |= np.all(xy[v2, ax] == val, axis=1)
+    owner = vertex_fp[v2[:, 0]]
+    is_bldg = ~(is_ground | is_top | is_side)
+    if np.any(is_bldg & ((owner < 0) | np.any(vertex_fp[v2] != owner[:, None], axis=1))):
+        raise MeshBuildError("a boundary face is neither ground, top, side nor a building face")
+    is_roof = is_bldg & np.all(lay == lay[:, :1], axis=1)
+    neighbours = nbrs.copy()
+    neighbours[bc, bf] = np.where(is_ground | is_bldg, BOUNDARY_REFLECT,
+                                  np.where(is_top & (top == "reflect"), BOUNDARY_REFLECT, BOUNDARY_OPEN))  # fmt: skip
+    face_material = np.zeros((t, 4), dtype=np.int64)
+    gi = np.flatnonzero(is_ground)
+    face_material[bc[gi], bf[gi]] = terrain.material(xy[v2[gi]].mean(axis=1))
+    bi = np.flatnonzero(is_bldg)
+    fp_mat = np.array([fp.material for fp in surfaces.footprints], dtype=np.int64)
+    face_material[bc[bi], bf[bi]] = fp_mat[owner[bi]] if len(bi) else 0
+    t2 = time.perf_counter()
+
+    # --- media and gradients ----------------------------------------------------------------------------
+    vertex_values = np.asarray(quantity_at(points), dtype=np.float64).reshape(-1)
+    if vertex_values.shape != (len(points),) or not np.all(np.isfinite(vertex_values)):
+        raise ValueError("quantity_at must return one finite value per point")
+    centroids = points[tets].mean(axis=1)
+    media_ref = vertex_values[tets].mean(axis=1)
+    gg = green_gauss_gradients(points, tets, vertex_values)
+    if gradient_method == "green_gauss":
+        grad, n_fallback = gg, 0
+    else:
+        grad, fallback = lsq_gradients(centroids, media_ref, neighbours, weighted=gradient_method == "lsq",
+                                       fallback=gg)  # fmt: skip
+        n_fallback = int(fallback.sum())
+    t3 = time.perf_counter()
+
+    cells = CellMesh(
+        planes=np.ascontiguousarray(planes),
+        neighbours=np.ascontiguousarray(neighbours),
+        neighbour_face=np.ascontiguousarray(nbf),
+        media_ref=np.ascontiguousarray(media_ref),
+        ref_point=np.ascontiguousarray(centroids),
+        gradient=np.ascontiguousarray(grad),
+        size=np.ascontiguousarray(longest),
+        face_material=face_material,
+    )
+    used = np.zeros(len(points), dtype=bool)
+    used[tets.ravel()] = True
+    stats = {
+        "n_vertices_2d": int(n2),
+        "n_triangles_2d": int(m),
+        "n_layers": int(n_layers),
+        "n_points": int(len(points)),
+        "n_unused_points": int((~used).sum()),
+        "n_cells": int(t),
+        "n_cells_removed": int(3 * (keep.size - keep.sum())),
+        "n_degenerate": 0,
+        "sigma_levels": s.tolist(),
+        "triangulation": {**tri_report, "n_terrain_samples": int(len(tsamp)), "n_lattice": int(len(lattice))},
+        "roofs": [{"name": fp.name, "base_z": float(base_z[f]), "roof_z": float(roof_z[f]), "level": int(roof_k[f])}
+                  for f, fp in enumerate(surfaces.footprints)],  # fmt: skip
+        **qual["summary"],
+        "n_boundary_faces": {
+            "ground": int(is_ground.sum()),
+            "walls": int((is_bldg & ~is_roof).sum()),
+            "roofs": int(is_roof.sum()),
+            "top": int(is_top.sum()),
+            "sides": int(is_side.sum()),
+            "reflect": int((neighbours == BOUNDARY_REFLECT).sum()),
+            "open": int((neighbours == BOUNDARY_OPEN).sum()),
+        },
+        "gradient_method": gradient_method,
+        "n_lsq_fallback": n_fallback,
+        "build_time_s": {"triangulation_2d": t1 - t0, "tables": t2 - t1, "gradients": t3 - t2,
+                         "total": time.perf_counter() - t0},  # fmt: skip
+    }
+    return TetMesh(cells=cells, points=points, tets=tets, stats=stats, vertex_values=vertex_values)
+
+
+# ---------------------------------------------------------------------------------------------------
+# Location
+# ---------------------------------------------------------------------------------------------------
+class TerrainIndex(NamedTuple):
+    """Point-location tables of a terrain mesh (``terrain_index``).
+
+    locator : TriangleLocator over the 2D triangulation; triangles : (m, 3) int64 2D vertex ids;
+    levels : (L + 1, n2) float64 column heights, metres; prism_cells : (m, L, 3) int64 cell ids of the
+    prism over triangle t between levels k and k + 1 (-1 where removed inside a building).
+    """
+
+    locator: TriangleLocator
+    triangles: np.ndarray
+    levels: np.ndarray
+    prism_cells: np.ndarray
+
+
+def terrain_index(tet_mesh: TetMesh) -> TerrainIndex:
+    """Rebuild the column structure of a ``build_terrain_mesh`` result from its tets (vectorised)."""
+    n2 = int(tet_mesh.stats["n_vertices_2d"])
+    n_layers = int(tet_mesh.stats["n_layers"])
+    tets = tet_mesh.tets
+    srt = np.sort(tets % n2, axis=1)  # each tet has exactly one vertical edge: one repeated 2D id
+    mid = np.where(srt[:, 1] != srt[:, 0], srt[:, 1], srt[:, 2])
+    tri3 = np.column_stack([srt[:, 0], mid, srt[:, 3]])
+    triangles, tri_id = np.unique(tri3, axis=0, return_inverse=True)
+    layer = tets.min(axis=1) // n2
+    cells = np.arange(len(tets))
+    prism_cells = np.full((len(triangles), n_layers, 3), -1, dtype=np.int64)
+    prism_cells[tri_id.reshape(-1), layer, cells % 3] = cells
+    xy = tet_mesh.points[:n2, :2]
+    levels = tet_mesh.points[:, 2].reshape(n_layers + 1, n2)
+    return TerrainIndex(TriangleLocator(xy, triangles), triangles, levels, prism_cells)
+
+
+def locate_in_terrain_mesh(tet_mesh: TetMesh, xyz: np.ndarray, index: TerrainIndex | None = None) -> np.ndarray:
+    """Cell id (N,) int64 containing each point of ``xyz`` (N, 3) metres, or -1 when outside the domain,
+    below the ground or inside a building.
+
+    2D location in the triangulation, then a bisection over the column's levels (the level surface over a
+    triangle is the plane through its 3 vertices: barycentric interpolation is exact), then the one of the
+    prism's 3 tets with the smallest plane violation (<= LOCATE_TOL_REL * cell size). Pass ``index``
+    (``terrain_index``) to reuse the tables across calls.
+    """
+    idx = terrain_index(tet_mesh) if index is None else index
+    xyz = np.atleast_2d(np.asarray(xyz, dtype=np.float64))
+    n = len(xyz)
+    out = np.full(n, -1, dtype=np.int64)
+    tri, bary = idx.locator.locate(xyz[:, :2])
+    ok = np.flatnonzero(tri >= 0)
+    if len(ok) == 0:
+        return out
+    tv = idx.triangles[tri[ok]]
+    w = bary[ok]
+    z = xyz[ok, 2]
+
+    def level(k: np.ndarray) -> np.ndarray:
+        return np.einsum("ni,ni->n", w, idx.levels[k[:, None], tv])
+
+    n_layers = idx.levels.shape[0] - 1
+    k_lo = np.zeros(len(ok), dtype=np.int64)
+    k_hi = np.full(len(ok), n_layers, dtype=np.int64)
+    while np.any(k_hi - k_lo > 1):
+        k_mid = (k_lo + k_hi) // 2
+        up = z >= level(k_mid)
+        k_lo = np.where(up, k_mid, k_lo)
+        k_hi = np.where(up, k_hi, k_mid)
+    cand = idx.prism_cells[tri[ok], k_lo]  # (n_ok, 3)
+    cm = tet_mesh.cells
+    c = np.maximum(cand, 0)
+    pl = cm.planes[c]  # (n_ok, 3, 4, 4)
+    viol = (np.einsum("nckj,nj->nck", pl[..., :3], xyz[ok]) - pl[..., 3]).max(axis=2)
+    viol = np.where(cand >= 0, viol, np.inf)
+    best = viol.argmin(axis=1)
+    rows = np.arange(len(ok))
+    good = viol[rows, best] <= LOCATE_TOL_REL * np.maximum(1.0, cm.size[c[rows, best]])
+    out[ok[good]] = cand[rows, best][good]
+    return out

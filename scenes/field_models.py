@@ -1,0 +1,96 @@
+"""The ``field`` key of a job: the 3D grid where pressure / sound levels are accumulated.
+
+Units: metres, hertz, percent, degrees Celsius, kilopascals. Grid values sit at grid points (VTK point
+data); point (i, j, k) is at ``origin + (i, j, k) * spacing`` and owns the voxel of size ``spacing``
+centred on it. A grid one point thick (e.g. shape [201, 1, 1]) is a receiver line.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+OCTAVE_BANDS_HZ: tuple[float, ...] = (63.0, 125.0, 250.0, 500.0, 1000.0, 2000.0, 4000.0, 8000.0)
+# 50M points x 8 bands x 8 bytes x threads: a few GB at most; larger maps are split into tiles.
+MAX_FIELD_POINTS = 50_000_000
+# Coherent mode keeps 5 records per arrival group and point.
+MAX_COHERENT_FIELD_POINTS = 5_000_000
+
+Vec3 = tuple[float, float, float]
+
+
+def band_label(frequency_hz: float) -> str:
+    """Key of a band in ``power_db`` and in array names: '63', '1000', '31.5'."""
+    return f"{frequency_hz:g}"
+
+
+class FieldSpec(BaseModel):
+    """Where and how to accumulate the field.
+
+    ``mode``: "incoherent" (energy, noise maps; default) or "coherent" (complex pressure per
+    frequency from arrival amplitudes and exact travel times; one source). ``humidity_percent``,
+    ``temperature_c`` and ``pressure_kpa`` set ISO 9613-1 absorption (``absorption`` false: none).
+    ``receiver_height_m``: height of the preview's horizontal slice above the ground.
+    ``sample_fraction``: sub-interval length along the curves as a fraction of the smallest spacing.
+    """
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    origin: Vec3
+    spacing: Vec3
+    shape: tuple[int, int, int]
+    frequencies_hz: list[float] = Field(default_factory=lambda: list(OCTAVE_BANDS_HZ), min_length=1, max_length=64)
+    mode: Literal["incoherent", "coherent"] = "incoherent"
+    humidity_percent: float = Field(default=70.0, ge=0.0, le=100.0)
+    temperature_c: float = Field(default=15.0, ge=-50.0, le=60.0)
+    pressure_kpa: float = Field(default=101.325, gt=0.0, le=200.0)
+    absorption: bool = True
+    receiver_height_m: float = Field(default=4.0, ge=0.0)
+    sample_fraction: float = Field(default=0.5, gt=0.0, le=2.0)
+
+    @field_validator("spacing")
+    @classmethod
+    def _positive_spacing(cls, value: Vec3) -> Vec3:
+        for axis, v in zip("xyz", value, strict=True):
+            if not v > 0:
+                raise ValueError(f"spacing along {axis} must be positive (got {v:g} m)")
+        return value
+
+    @field_validator("shape")
+    @classmethod
+    def _shape(cls, value: tuple[int, int, int]) -> tuple[int, int, int]:
+        for axis, v in zip("xyz", value, strict=True):
+            if v < 1:
+                raise ValueError(f"shape along {axis} must be at least 1 (got {v})")
+        n = int(np.prod(value, dtype=np.int64))
+        if n > MAX_FIELD_POINTS:
+            raise ValueError(
+                f"{value[0]} x {value[1]} x {value[2]} = {n:,} points; the limit is "
+                f"{MAX_FIELD_POINTS:,} per job (split the map into tiles)"
+            )
+        return value
+
+    @field_validator("frequencies_hz")
+    @classmethod
+    def _frequencies(cls, value: list[float]) -> list[float]:
+        for f in value:
+            if not 10.0 <= f <= 40_000.0:
+                raise ValueError(f"frequency {f:g} Hz is outside 10 Hz .. 40 kHz")
+        labels = [band_label(f) for f in value]
+        if len(set(labels)) != len(labels):
+            raise ValueError("frequencies must be distinct")
+        return value
+
+    @property
+    def n_points(self) -> int:
+        return int(np.prod(self.shape, dtype=np.int64))
+
+    @property
+    def labels(self) -> list[str]:
+        return [band_label(f) for f in self.frequencies_hz]
+
+    @property
+    def upper_corner(self) -> np.ndarray:
+        return np.asarray(self.origin, float) + (np.asarray(self.shape) - 1) * np.asarray(self.spacing, float)

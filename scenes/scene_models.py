@@ -1,0 +1,466 @@
+"""Job-file models for scene surfaces (terrain, buildings, materials) and their conversion to
+:class:`bentray.engine.surfaces.SceneSurfaces`.
+
+Models (pydantic v2, unknown keys and NaN/inf rejected; validators only check, never rewrite):
+``scene.terrain`` -> :class:`TerrainSpec`, ``scene.buildings`` -> :class:`BuildingsSpec` (a GeoJSON file,
+inline ``footprints`` and/or closed ``obstacles`` meshes), ``scene.materials`` -> list of
+:class:`MaterialSpec`. Material names are looked up in ``scene.materials``; ``rigid`` (index 0) always
+exists. Cross-field checks that need the files or the domain run in :func:`surfaces_from_specs` and
+raise :class:`SceneSpecError` (or the reader's :class:`SceneFileError`) naming the job field.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Literal, Protocol
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from bentray.engine.errors import JobInputError
+from bentray.engine.surfaces import Footprint, HeightGrid, Material, SceneSurfaces, TriangleSurface
+from bentray.scenes.geometry import (
+    box_pairs,
+    normalise_polygon,
+    points_in_polygon,
+    polygon_problem,
+    polygons_overlap,
+    terrain_height_at,
+    terrain_xy_bounds,
+)
+from bentray.scenes.terrain_io import (
+    MAX_BUILDING_HEIGHT_M,
+    MAX_FOOTPRINTS,
+    MAX_POLYGON_VERTICES,
+    TERRAIN_FORMATS,
+    SceneFileError,
+    read_footprints_geojson,
+    read_obstacle_mesh,
+    read_terrain,
+)
+
+__all__ = [
+    "COVERAGE_SAMPLES",
+    "RIGID",
+    "MaterialSpec",
+    "TerrainSpec",
+    "FootprintSpec",
+    "ObstacleSpec",
+    "BuildingsSpec",
+    "SceneSpecError",
+    "material_reference_errors",
+    "surfaces_from_specs",
+    "surface_problems",
+    "footprint_base_z",
+    "check_points_above_ground",
+]
+
+RIGID = "rigid"  # material 0: acoustically rigid, always defined
+# A triangle-mesh terrain must cover the domain's xy box; checked on a COVERAGE_SAMPLES^2 lattice of
+# points (edges included) plus the box corners: gaps narrower than box size / 64 can go unnoticed.
+COVERAGE_SAMPLES = 65
+_NAME = r"^[A-Za-z0-9][A-Za-z0-9 ._-]{0,63}$"
+
+
+class SceneSpecError(JobInputError):
+    """The scene's surfaces are valid files but do not fit together (outside the domain, overlapping,
+    undefined material, a point below the ground or inside a building)."""
+
+
+class _Model(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class MaterialSpec(_Model):
+    """A named ground or facade material: Delany-Bazley flow resistivity in Pa s/m^2, null = rigid."""
+
+    name: str = Field(pattern=_NAME)
+    flow_resistivity: float | None = Field(gt=0)
+
+    @field_validator("name")
+    @classmethod
+    def _not_rigid(cls, value: str) -> str:
+        if value == RIGID:
+            raise ValueError(f"{RIGID!r} is built in (material 0, flow_resistivity null); choose another name")
+        return value
+
+
+class TerrainSpec(_Model):
+    """Terrain file (relative paths resolve against the job file's folder). ``format`` defaults to the
+    suffix; ``origin`` (x, y of z[0, 0]) and ``spacing`` (dx, dy) in metres only for ``.npy``."""
+
+    file: str = Field(min_length=1)
+    format: Literal["asc", "npy", "npz", "obj", "stl", "ply"] | None = None
+    origin: tuple[float, float] | None = None
+    spacing: tuple[float, float] | None = None
+    material: str | None = None
+
+    @property
+    def effective_format(self) -> str:
+        return self.format or Path(self.file).suffix.lstrip(".").lower()
+
+    @field_validator("spacing")
+    @classmethod
+    def _positive(cls, value: tuple[float, float] | None) -> tuple[float, float] | None:
+        if value is not None and min(value) <= 0:
+            raise ValueError(f"spacing must be > 0 along x and y, got {list(value)}")
+        return value
+
+    @model_validator(mode="after")
+    def _format_and_grid(self) -> TerrainSpec:
+        fmt = self.effective_format
+        if fmt not in TERRAIN_FORMATS:
+            raise ValueError(
+                f"cannot tell the terrain format from {self.file!r}; set format to one of {', '.join(TERRAIN_FORMATS)}"
+            )
+        given = [k for k in ("origin", "spacing") if getattr(self, k) is not None]
+        if fmt == "npy" and len(given) != 2:
+            raise ValueError("a .npy terrain holds heights only: give origin [x, y] and spacing [dx, dy] in metres")
+        if fmt != "npy" and given:
+            raise ValueError(f"{' and '.join(given)} only apply to .npy terrain; a .{fmt} file carries its own")
+        return self
+
+
+class FootprintSpec(_Model):
+    """An inline building or barrier: a simple polygon [[x, y], ...] (either orientation, closing vertex
+    optional), ``height_m`` above ``base_z`` (default: the lowest terrain under the polygon)."""
+
+    polygon: list[tuple[float, float]] = Field(min_length=3, max_length=MAX_POLYGON_VERTICES)
+    height_m: float = Field(gt=0, lt=MAX_BUILDING_HEIGHT_M)
+    base_z: float | None = None
+    material: str | None = None
+    name: str | None = Field(default=None, max_length=100)
+
+    @field_validator("polygon")
+    @classmethod
+    def _simple(cls, value: list[tuple[float, float]]) -> list[tuple[float, float]]:
+        problem = polygon_problem(normalise_polygon(np.array(value, dtype=np.float64)))
+        if problem:
+            raise ValueError(problem)
+        return value
+
+
+class ObstacleSpec(_Model):
+    """A closed obstacle mesh (OBJ/STL/PLY; watertight, outward normals, not self-intersecting)."""
+
+    file: str = Field(min_length=1)
+    format: Literal["obj", "stl", "ply"] | None = None
+    name: str | None = Field(default=None, max_length=100)
+
+
+class BuildingsSpec(_Model):
+    """Buildings and barriers: a GeoJSON ``file`` of footprints, inline ``footprints``, closed ``obstacles``."""
+
+    file: str | None = Field(default=None, min_length=1)
+    footprints: list[FootprintSpec] = Field(default_factory=list, max_length=MAX_FOOTPRINTS)
+    obstacles: list[ObstacleSpec] = Field(default_factory=list, max_length=1000)
+
+    @field_validator("file")
+    @classmethod
+    def _geojson(cls, value: str | None) -> str | None:
+        if value is not None and Path(value).suffix.lower() not in (".geojson", ".json"):
+            raise ValueError(f"buildings file must be GeoJSON (.geojson or .json), got {value!r}")
+        return value
+
+    @model_validator(mode="after")
+    def _something(self) -> BuildingsSpec:
+        if self.file is None and not self.footprints and not self.obstacles:
+            raise ValueError("give a GeoJSON file, footprints or obstacles (or leave buildings out)")
+        return self
+
+
+class _Box(Protocol):
+    """Anything with ``min`` and ``max`` (x, y, z) in metres, e.g. :class:`bentray.scenes.schema.Domain`."""
+
+    @property
+    def min(self) -> Sequence[float]: ...
+
+    @property
+    def max(self) -> Sequence[float]: ...
+
+
+def material_reference_errors(
+    terrain: TerrainSpec | None, buildings: BuildingsSpec | None, materials: Sequence[MaterialSpec]
+) -> list[tuple[tuple[str | int, ...], str]]:
+    """(location relative to ``scene``, reason) for duplicate material names and undefined references
+    in the job itself (GeoJSON files are checked when read). For the schema's Scene validator."""
+    errors: list[tuple[tuple[str | int, ...], str]] = []
+    names = [RIGID]
+    for i, m in enumerate(materials):
+        if m.name in names:
+            errors.append((("materials", i, "name"), f"duplicate material name {m.name!r}"))
+        names.append(m.name)
+    defined = ", ".join(names)
+    if terrain is not None and terrain.material is not None and terrain.material not in names:
+        errors.append((("terrain", "material"), f"material {terrain.material!r} is not defined ({defined})"))
+    for i, fp in enumerate(buildings.footprints if buildings is not None else []):
+        if fp.material is not None and fp.material not in names:
+            errors.append(
+                (("buildings", "footprints", i, "material"), f"material {fp.material!r} is not defined ({defined})")
+            )
+    return errors
+
+
+def footprint_base_z(terrain: HeightGrid | TriangleSurface | None, footprint: Footprint, flat_z: float) -> float:
+    """The footprint's ground level in metres: ``base_z`` if set, else an estimate of the lowest terrain
+    height under the polygon (its vertices, points every half terrain spacing along its edges and the
+    terrain nodes inside it; ``flat_z`` without terrain). NaN where the terrain does not cover it."""
+    if footprint.base_z is not None:
+        return float(footprint.base_z)
+    if terrain is None:
+        return float(flat_z)
+    poly = footprint.polygon
+    if isinstance(terrain, HeightGrid):
+        step = 0.5 * min(float(np.min(np.diff(terrain.x))), float(np.min(np.diff(terrain.y))))
+        gx, gy = np.meshgrid(terrain.x, terrain.y)
+        nodes = np.column_stack([gx.ravel(), gy.ravel()])
+        node_z = terrain.z.ravel()
+    else:
+        e = terrain.vertices[terrain.triangles][:, :, :2]
+        step = 0.5 * float(np.median(np.linalg.norm(np.roll(e, -1, axis=1) - e, axis=2)))
+        nodes, node_z = terrain.vertices[:, :2], terrain.vertices[:, 2]
+    lo, hi = poly.min(axis=0), poly.max(axis=0)
+    near = np.all((nodes >= lo) & (nodes <= hi), axis=1)
+    inside_z = node_z[near][points_in_polygon(nodes[near], poly)]
+    a, b = poly, np.roll(poly, -1, axis=0)
+    samples = [a]
+    for k in range(poly.shape[0]):
+        n = max(int(np.ceil(np.linalg.norm(b[k] - a[k]) / step)), 1)
+        t = np.arange(1, n)[:, None] / n
+        samples.append(a[k] + t * (b[k] - a[k]))
+    edge_z = terrain_height_at(terrain, np.concatenate(samples))
+    return float(min(np.min(edge_z), np.min(inside_z, initial=np.inf)))
+
+
+def _resolve(base_dir: str | Path | None, file: str) -> Path:
+    path = Path(file)
+    return path if path.is_absolute() or base_dir is None else Path(base_dir) / path
+
+
+def _fmt(values) -> str:
+    return "(" + ", ".join(f"{v:g}" for v in values) + ")"
+
+
+def surfaces_from_specs(
+    terrain: TerrainSpec | None,
+    buildings: BuildingsSpec | None,
+    materials: Sequence[MaterialSpec] | None,
+    base_dir: str | Path | None,
+    domain: _Box,
+    prefix: str = "scene",
+) -> SceneSurfaces:
+    """Read and check the scene's surface files and inline footprints; return the engine container.
+
+    domain : the scene box (``min``, ``max`` in metres). Checks: material names defined and unique;
+    terrain covers the domain's xy box, stays inside [min z, max z); every footprint vertex strictly
+    inside the xy box, roofs below max z, no two footprints overlapping (touching walls are fine);
+    obstacle vertices strictly inside the box. Raises SceneFileError (unreadable or invalid file) or
+    SceneSpecError, each line starting with the job field (``scene.terrain.file: ...``).
+    """
+    materials = list(materials or [])
+    dmin = np.asarray(domain.min, dtype=np.float64)
+    dmax = np.asarray(domain.max, dtype=np.float64)
+    errors = [
+        f"{prefix}.{'.'.join(map(str, loc))}: {why}"
+        for loc, why in material_reference_errors(terrain, buildings, materials)
+    ]
+    if errors:
+        raise SceneSpecError("\n".join(errors))
+    table = [Material(RIGID, None)] + [Material(m.name, m.flow_resistivity) for m in materials]
+    index = {m.name: i for i, m in enumerate(table)}
+    surfaces = SceneSurfaces(materials=table)
+
+    if terrain is not None:
+        field = f"{prefix}.terrain.file"
+        try:
+            grid = read_terrain(
+                _resolve(base_dir, terrain.file), terrain.effective_format, terrain.origin, terrain.spacing
+            )
+        except SceneFileError as exc:
+            raise SceneFileError(f"{field}: {exc}") from None
+        grid.default_material = index[terrain.material or RIGID]
+        errors += [f"{field}: {why}" for why in _terrain_problems(grid, dmin, dmax)]
+        surfaces.terrain = grid
+
+    labelled: list[tuple[str, Footprint]] = []
+    if buildings is not None:
+        if buildings.file is not None:
+            field = f"{prefix}.buildings.file"
+            try:
+                read = read_footprints_geojson(_resolve(base_dir, buildings.file), index)
+            except SceneFileError as exc:
+                raise SceneFileError(f"{field}: {exc}") from None
+            labelled += [(f"{field}: {fp.name!r}", fp) for fp in read]
+        for i, spec in enumerate(buildings.footprints):
+            fp = Footprint(
+                polygon=normalise_polygon(np.array(spec.polygon, dtype=np.float64)),
+                height_m=spec.height_m,
+                base_z=spec.base_z,
+                material=index[spec.material or RIGID],
+                name=spec.name or f"footprint {i}",
+            )
+            labelled.append((f"{prefix}.buildings.footprints.{i}" + (f" ({spec.name!r})" if spec.name else ""), fp))
+        for i, ob in enumerate(buildings.obstacles):
+            field = f"{prefix}.buildings.obstacles.{i}.file"
+            try:
+                vertices, faces = read_obstacle_mesh(_resolve(base_dir, ob.file), ob.format)
+            except SceneFileError as exc:
+                raise SceneFileError(f"{field}: {exc}") from None
+            outside = ~np.all((vertices > dmin) & (vertices < dmax), axis=1)
+            if np.any(outside):
+                errors.append(
+                    f"{field}: {int(outside.sum())} vertices lie outside the domain (first "
+                    f"{_fmt(vertices[np.argmax(outside)])}); the domain is {_fmt(dmin)} to {_fmt(dmax)}"
+                )
+            surfaces.obstacles.append((vertices, faces))
+    errors += _footprint_problems(labelled, surfaces.terrain, dmin, dmax)
+    if errors:
+        raise SceneSpecError("\n".join(errors))
+    surfaces.footprints = [fp for _, fp in labelled]
+    return surfaces
+
+
+def surface_problems(surfaces: SceneSurfaces, domain_min, domain_max) -> list[str]:
+    """The geometric checks of :func:`surfaces_from_specs` on a ready container (e.g. a built-in scene):
+    one line per problem, footprints labelled by name; empty when everything fits the domain."""
+    dmin = np.asarray(domain_min, dtype=np.float64)
+    dmax = np.asarray(domain_max, dtype=np.float64)
+    problems = (
+        [f"terrain: {why}" for why in _terrain_problems(surfaces.terrain, dmin, dmax)] if surfaces.terrain else []
+    )
+    labelled = [(f"footprint {fp.name!r}", fp) for fp in surfaces.footprints]
+    return problems + _footprint_problems(labelled, surfaces.terrain, dmin, dmax)
+
+
+def _terrain_problems(grid: HeightGrid | TriangleSurface, dmin: np.ndarray, dmax: np.ndarray) -> list[str]:
+    lo, hi = terrain_xy_bounds(grid)
+    if np.any(lo > dmin[:2]) or np.any(hi < dmax[:2]):
+        return [
+            f"the terrain covers x {lo[0]:g}..{hi[0]:g}, y {lo[1]:g}..{hi[1]:g} m but the domain's xy box is "
+            f"x {dmin[0]:g}..{dmax[0]:g}, y {dmin[1]:g}..{dmax[1]:g} m: the terrain must cover it"
+        ]
+    problems = []
+    if isinstance(grid, TriangleSurface):
+        u = np.linspace(dmin[0], dmax[0], COVERAGE_SAMPLES)
+        v = np.linspace(dmin[1], dmax[1], COVERAGE_SAMPLES)
+        probe = np.stack(np.meshgrid(u, v), axis=-1).reshape(-1, 2)
+        gap = np.isnan(terrain_height_at(grid, probe))
+        if np.any(gap):
+            problems.append(
+                f"the terrain mesh has a hole over the domain: no triangle above {_fmt(probe[np.argmax(gap)])} "
+                f"({int(gap.sum())} of {gap.size} sample points uncovered)"
+            )
+        z = grid.vertices[:, 2]
+    else:
+        z = grid.z
+    if z.max() >= dmax[2]:
+        problems.append(f"the terrain reaches z = {z.max():g} m, not below the domain top (max z = {dmax[2]:g} m)")
+    if z.min() < dmin[2]:
+        problems.append(
+            f"the terrain goes down to z = {z.min():g} m, below the domain bottom (min z = {dmin[2]:g} m): "
+            "lower domain.min z"
+        )
+    return problems
+
+
+def _footprint_problems(
+    labelled: list[tuple[str, Footprint]],
+    terrain: HeightGrid | TriangleSurface | None,
+    dmin: np.ndarray,
+    dmax: np.ndarray,
+) -> list[str]:
+    problems = []
+    for label, fp in labelled:
+        outside = ~np.all((fp.polygon > dmin[:2]) & (fp.polygon < dmax[:2]), axis=1)
+        if np.any(outside):
+            problems.append(
+                f"{label}: vertex {_fmt(fp.polygon[np.argmax(outside)])} is outside the domain's xy box "
+                f"x {dmin[0]:g}..{dmax[0]:g}, y {dmin[1]:g}..{dmax[1]:g} m"
+            )
+            continue
+        base = footprint_base_z(terrain, fp, dmin[2])
+        if fp.base_z is not None and fp.base_z < dmin[2]:
+            problems.append(f"{label}: base_z = {fp.base_z:g} m is below the domain bottom (min z = {dmin[2]:g} m)")
+        if base + fp.height_m >= dmax[2]:
+            problems.append(
+                f"{label}: the roof at z = {base + fp.height_m:g} m is not below the domain top (max z = {dmax[2]:g} m)"
+            )
+    if len(labelled) > 1 and not problems:
+        lo = np.array([fp.polygon.min(axis=0) for _, fp in labelled])
+        hi = np.array([fp.polygon.max(axis=0) for _, fp in labelled])
+        for i, j in zip(*box_pairs(lo, hi), strict=True):
+            if polygons_overlap(labelled[i][1].polygon, labelled[j][1].polygon):
+                problems.append(f"{labelled[i][0]} overlaps {labelled[j][0]}; footprints may touch but not overlap")
+    return problems
+
+
+def _solid_angle_sum(points: np.ndarray, tri: np.ndarray) -> np.ndarray:
+    """Generalised winding number (N,) of closed triangle soups around points (Van Oosterom-Strackee)."""
+    out = np.zeros(points.shape[0])
+    chunk = max(1, 2_000_000 // max(tri.shape[0], 1))
+    for s in range(0, points.shape[0], chunk):
+        r = tri[None, :, :, :] - points[s : s + chunk, None, None, :]  # (n, F, 3, 3)
+        length = np.linalg.norm(r, axis=3)
+        a, b, c = r[:, :, 0], r[:, :, 1], r[:, :, 2]
+        la, lb, lc = length[:, :, 0], length[:, :, 1], length[:, :, 2]
+        num = np.einsum("nfd,nfd->nf", a, np.cross(b, c))
+        den = (
+            la * lb * lc
+            + np.einsum("nfd,nfd->nf", a, b) * lc
+            + np.einsum("nfd,nfd->nf", b, c) * la
+            + np.einsum("nfd,nfd->nf", c, a) * lb
+        )
+        out[s : s + chunk] = (2.0 * np.arctan2(num, den)).sum(axis=1) / (4.0 * np.pi)
+    return out
+
+
+def check_points_above_ground(
+    surfaces: SceneSurfaces,
+    points: np.ndarray | Sequence[Sequence[float]],
+    names: Sequence[str],
+    *,
+    flat_ground_z: float | None = None,
+) -> None:
+    """Raise SceneSpecError (one line per bad point) unless every point is strictly above the ground and
+    outside every building and obstacle.
+
+    points : (N, 3) metres, world frame; names : N job-field names (e.g. ``sources.0.position``).
+    flat_ground_z : ground height when the scene has no terrain (domain min z); None skips that test
+    (footprints without base_z then stand on z = 0).
+    Ground: bilinear on a height grid, linear on terrain triangles. Buildings: the point's xy in the
+    closed footprint and z at or below the roof (the base as in :func:`footprint_base_z`).
+    Obstacles: winding number above 1/2.
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(names) != p.shape[0]:
+        raise ValueError(f"{p.shape[0]} points but {len(names)} names")
+    bad: dict[int, str] = {}
+    if surfaces.terrain is not None:
+        ground = terrain_height_at(surfaces.terrain, p[:, :2])
+    else:
+        ground = np.full(p.shape[0], np.nan if flat_ground_z is None else float(flat_ground_z))
+    for k in range(p.shape[0]):
+        if surfaces.terrain is not None and np.isnan(ground[k]):
+            bad[k] = "is outside the terrain's xy extent"
+        elif not np.isnan(ground[k]) and p[k, 2] <= ground[k]:
+            depth = ground[k] - p[k, 2]
+            where = "on the ground" if depth == 0 else f"{depth:.3g} m below the ground"
+            bad[k] = f"is {where} (ground at z = {ground[k]:g} m)"
+    flat_z = 0.0 if flat_ground_z is None else float(flat_ground_z)
+    for fp in surfaces.footprints:
+        lo, hi = fp.polygon.min(axis=0), fp.polygon.max(axis=0)
+        near = np.flatnonzero(np.all((p[:, :2] >= lo) & (p[:, :2] <= hi), axis=1))
+        if near.size == 0:
+            continue
+        tol = 1e-9 * max(float(np.abs(fp.polygon).max()), 1.0)
+        inside = points_in_polygon(p[near, :2], fp.polygon, margin=-tol)
+        roof = footprint_base_z(surfaces.terrain, fp, flat_z) + fp.height_m
+        for k in near[inside & (p[near, 2] <= roof)]:
+            bad.setdefault(int(k), f"is inside building {fp.name!r} (roof at z = {roof:g} m)")
+    for i, (vertices, faces) in enumerate(surfaces.obstacles):
+        winding = _solid_angle_sum(p, vertices[faces])
+        for k in np.flatnonzero(winding > 0.5):
+            bad.setdefault(int(k), f"is inside obstacle {i}")
+    if bad:
+        raise SceneSpecError("\n".join(f"{names[k]}: {_fmt(p[k])} {bad[k]}" for k in sorted(bad)))
