@@ -96,18 +96,19 @@ def energy_absorption(spec: FieldSpec) -> np.ndarray:
 
 def prepare(spec: FieldSpec, *, ray_weights: np.ndarray, source_index: np.ndarray,
             source_powers_w: np.ndarray | None, flow_resistivity: float | None, max_reflections: int,
-            n_slots: int | None = None) -> FieldBuffers:
+            ground_sound_speed: float, n_slots: int | None = None) -> FieldBuffers:
     """Allocate the accumulators for a job.
 
     ray_weights : (n,) Omega/(4 pi) per ray; source_index : (n,) int; source_powers_w : (n_src, n_f) W
-    or None. With several powered sources a second set of bands accumulates the powered energy (SPL);
+    or None. ground_sound_speed (m/s) sets k in the ground table. With several powered sources a
+    second set of bands accumulates the powered energy (SPL);
     the first set always holds unit-power energy (TL).
     """
     grid = FieldGrid(np.asarray(spec.origin, float), np.asarray(spec.spacing, float), tuple(spec.shape))
     n_f = len(spec.frequencies_hz)
     alpha = energy_absorption(spec)
     materials = [None, flow_resistivity]
-    q2 = build_q2_table(np.asarray(spec.frequencies_hz, float), materials)
+    q2 = build_q2_table(np.asarray(spec.frequencies_hz, float), materials, c=ground_sound_speed)
     q2tab, q2ax = q2.table, q2.grid
     n_slots = int(n_slots or numba.get_num_threads())
     h = spec.sample_fraction * float(np.min(spec.spacing))

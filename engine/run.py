@@ -92,7 +92,7 @@ def run_job(job: Job, base_dir: Path | None = None) -> JobOutcome:
     powers = None
     if job.field is not None:
         t0 = time.perf_counter()
-        mesh, buffers, powers = _prepare_field(job, mesh, len(origins), src_idx)
+        mesh, buffers, powers = _prepare_field(job, profile, mesh, len(origins), src_idx)
         timings["field_setup"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     result: TraceResult = trace(
@@ -141,7 +141,7 @@ def run_job(job: Job, base_dir: Path | None = None) -> JobOutcome:
     return JobOutcome(trace=result, mesh_geometry=geometry, report=report, field=field_arrays)
 
 
-def _prepare_field(job: Job, mesh: CellMesh, n_rays: int, src_idx: np.ndarray):
+def _prepare_field(job: Job, profile, mesh: CellMesh, n_rays: int, src_idx: np.ndarray):
     """Ground material on the mesh, per-ray launch weights, source powers (W) and the accumulators."""
     spec = job.field
     assert spec is not None
@@ -150,12 +150,15 @@ def _prepare_field(job: Job, mesh: CellMesh, n_rays: int, src_idx: np.ndarray):
         mesh = field_stage.tag_ground_material(mesh, float(job.scene.domain.min[2]), field_stage.GROUND_MATERIAL)
     per_source = field_stage.launch_solid_angles(job.rays.elevation_deg.values(), job.rays.azimuth_deg.values())
     weights = np.tile(per_source, len(job.sources))
+    lo = job.scene.domain.min
+    ground_point = np.array([[job.sources[0].position[0], job.sources[0].position[1], lo[2]]])
     powers = None
     if job.sources[0].power_db is not None:
         powers = np.array([[field_stage.W_REF * 10.0 ** (src.power_db[b] / 10.0) for b in spec.labels]
                            for src in job.sources])
     buffers = field_stage.prepare(spec, ray_weights=weights, source_index=src_idx, source_powers_w=powers,
-                                  flow_resistivity=sigma, max_reflections=job.rays.max_reflections)
+                                  flow_resistivity=sigma, max_reflections=job.rays.max_reflections,
+                                  ground_sound_speed=float(profile.sound_speed(ground_point)[0]))
     return mesh, buffers, powers
 
 

@@ -84,18 +84,23 @@ def box_pairs(
     extent = float(np.max(top - origin))
     pad = GEOMETRY_REL_TOL * max(extent, 1.0)
     lo_a, hi_a, lo_b, hi_b = lo_a - pad, hi_a + pad, lo_b - pad, hi_b + pad
-    sizes = np.concatenate([(hi_a - lo_a).max(axis=1), (hi_b - lo_b).max(axis=1)])
     n_boxes = lo_a.shape[0] + lo_b.shape[0]
-    h = max(float(np.median(sizes)), (extent + 2 * pad) / _MAX_CELLS_PER_AXIS, 1e-300)
+    h = max(
+        float(np.median((hi_a - lo_a).max(axis=1))),
+        float(np.median((hi_b - lo_b).max(axis=1))),
+        (extent + 2 * pad) / _MAX_CELLS_PER_AXIS,
+        1e-300,
+    )
+    grid_origin = origin - pad
     while True:
-        dims = np.floor((top + pad - (origin - pad)) / h).astype(np.int64) + 1
+        dims = np.floor((top + pad - grid_origin) / h).astype(np.int64) + 1
         span_a = np.prod(np.floor((hi_a - lo_a) / h) + 2, axis=1).sum()
         span_b = np.prod(np.floor((hi_b - lo_b) / h) + 2, axis=1).sum()
         if span_a + span_b <= 16 * n_boxes + 64:
             break
         h *= 2.0  # a few huge boxes would otherwise register in very many cells
-    box_a, key_a = _registrations(lo_a, hi_a, origin - pad, h, dims)
-    box_b, key_b = _registrations(lo_b, hi_b, origin - pad, h, dims)
+    box_a, key_a = _registrations(lo_a, hi_a, grid_origin, h, dims)
+    box_b, key_b = _registrations(lo_b, hi_b, grid_origin, h, dims)
     order_b = np.argsort(key_b, kind="stable")
     key_b, box_b = key_b[order_b], box_b[order_b]
     start = np.searchsorted(key_b, key_a, side="left")
@@ -105,15 +110,18 @@ def box_pairs(
     if total > MAX_CANDIDATE_PAIRS:
         raise CandidateLimitError(f"the overlap search needs {total:,} candidate pairs (limit {MAX_CANDIDATE_PAIRS:,})")
     ia = np.repeat(box_a, n_pairs)
+    cell = np.repeat(key_a, n_pairs)
     offset = np.arange(total, dtype=np.int64) - np.repeat(np.cumsum(n_pairs) - n_pairs, n_pairs)
     ib = box_b[np.repeat(start, n_pairs) + offset]
     keep = ia < ib if self_join else np.ones(ia.shape, dtype=bool)
-    ia, ib = ia[keep], ib[keep]
+    ia, ib, cell = ia[keep], ib[keep], cell[keep]
     overlap = np.all((lo_a[ia] <= hi_b[ib]) & (lo_b[ib] <= hi_a[ia]), axis=1)
-    ia, ib = ia[overlap], ib[overlap]
-    if ia.size == 0:
-        return empty
-    code = np.unique(ia * np.int64(lo_b.shape[0]) + ib)
+    ia, ib, cell = ia[overlap], ib[overlap], cell[overlap]
+    # report each pair once: in the cell holding the lower corner of the boxes' intersection
+    corner = np.clip(np.floor((np.maximum(lo_a[ia], lo_b[ib]) - grid_origin) / h).astype(np.int64), 0, dims - 1)
+    strides = np.concatenate([[1], np.cumprod(dims[:-1])]).astype(np.int64)
+    once = corner @ strides == cell
+    code = np.sort(ia[once] * np.int64(lo_b.shape[0]) + ib[once])
     return code // lo_b.shape[0], code % lo_b.shape[0]
 
 

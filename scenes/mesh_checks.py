@@ -105,6 +105,14 @@ def orient_ccw_from_above(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray
     return out
 
 
+def _unique_pairs(pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """np.unique(pairs, axis=0, return_inverse=True, return_counts=True) for (N, 2) non-negative int64,
+    through one int64 code per row (several times faster than the row-wise unique)."""
+    n = np.int64(pairs.max(initial=0) + 1)
+    codes, inverse, counts = np.unique(pairs[:, 0] * n + pairs[:, 1], return_inverse=True, return_counts=True)
+    return np.column_stack([codes // n, codes % n]), inverse.ravel(), counts
+
+
 def _edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Directed edges (3F, 2) in face order (edge k of face f at row 3 f + k) and the owning face ids."""
     directed = np.stack([faces, np.roll(faces, -1, axis=1)], axis=2).reshape(-1, 2)
@@ -136,15 +144,14 @@ def height_field_problem(vertices: np.ndarray, faces: np.ndarray) -> str | None:
     faces = orient_ccw_from_above(vertices, faces)
     directed, owner = _edges(faces)
     undirected = np.sort(directed, axis=1)
-    keys, idx, counts = np.unique(undirected, axis=0, return_inverse=True, return_counts=True)
-    idx = idx.ravel()
+    keys, idx, counts = _unique_pairs(undirected)
     if np.any(counts > 2):
         e = keys[int(np.argmax(counts > 2))]
         return f"the edge between vertices {e[0]} and {e[1]} is shared by {int(counts.max())} triangles"
     # both triangles counter-clockwise from above: on opposite sides of a shared edge they traverse it in
     # opposite directions; the same direction twice means one folds back over the other
-    _, d_idx, d_counts = np.unique(directed, axis=0, return_inverse=True, return_counts=True)
-    folded = d_counts[d_idx.ravel()] > 1
+    _, d_idx, d_counts = _unique_pairs(directed)
+    folded = d_counts[d_idx] > 1
     if np.any(folded):
         e = int(np.argmax(folded))
         pair = owner[(idx == idx[e])]
@@ -214,7 +221,7 @@ def closed_mesh_problem(vertices: np.ndarray, faces: np.ndarray) -> str | None:
     Run :func:`basic_mesh_problem` first."""
     directed, owner = _edges(faces)
     undirected = np.sort(directed, axis=1)
-    keys, idx, counts = np.unique(undirected, axis=0, return_inverse=True, return_counts=True)
+    keys, idx, counts = _unique_pairs(undirected)
     if np.any(counts == 1):
         e = keys[int(np.argmax(counts == 1))]
         return (
@@ -227,17 +234,16 @@ def closed_mesh_problem(vertices: np.ndarray, faces: np.ndarray) -> str | None:
             f"not manifold: {int(np.sum(counts > 2))} edges are shared by more than two triangles (first: the "
             f"edge {_fmt(vertices[e[0]])}-{_fmt(vertices[e[1]])}, in {int(counts[np.argmax(counts > 2)])})"
         )
-    _, d_idx, d_counts = np.unique(directed, axis=0, return_inverse=True, return_counts=True)
-    same_way = d_counts[d_idx.ravel()] > 1
+    _, d_idx, d_counts = _unique_pairs(directed)
+    same_way = d_counts[d_idx] > 1
     if np.any(same_way):
         e = int(np.argmax(same_way))
-        pair = owner[idx.ravel() == idx.ravel()[e]]
+        pair = owner[idx == idx[e]]
         return (
             f"inconsistently oriented: triangles {pair[0]} and {pair[1]} run through their shared edge in the "
             "same direction (their normals disagree)"
         )
     # shells: connected components over shared edges; each must enclose a positive volume
-    idx = idx.ravel()
     pair_rows = np.argsort(idx, kind="stable").reshape(-1, 2)  # each edge appears exactly twice
     fa, fb = owner[pair_rows[:, 0]], owner[pair_rows[:, 1]]
     n_faces = faces.shape[0]

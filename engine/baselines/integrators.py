@@ -22,7 +22,9 @@ c_ref)`` built by :func:`make_media`; kind ``MEDIA_EXACT`` evaluates the closed-
 from ``cell`` (mesh_media.mesh_n_and_grad).
 
 Every stepper takes ``k1 = f(y0)`` precomputed (so a restarted step costs no new evaluation at its
-start) and returns False when the media was unphysical (n <= 0) or non-finite at a stage.
+start) and returns False when the media was unphysical (n <= 0) or non-finite at a stage. Also here:
+the step-size controller (``controlled_step``) and event landing by restarted steps (``land``), which
+trace_numerical uses for boundaries and the time limit.
 """
 
 from __future__ import annotations
@@ -49,12 +51,19 @@ __all__ = [
     "make_media",
     "media_n",
     "rhs",
+    "rk_step",
     "euler_step",
     "euler_doubling_step",
     "rk4_step",
     "dopri5_step",
     "advance",
     "error_norm",
+    "controlled_step",
+    "plane_g",
+    "event_g",
+    "event_rate",
+    "first_guess",
+    "land",
 ]
 
 NY = 8  # state size: x(3), p(3), t, s
@@ -68,19 +77,55 @@ METHOD_RK4 = 2  # classical Runge-Kutta, fixed step, order 4
 METHOD_DOPRI5 = 3  # Dormand-Prince 5(4), adaptive, local extrapolation, FSAL
 METHOD_CODES = {"euler": METHOD_EULER, "euler_adaptive": METHOD_EULER_ADAPTIVE, "rk4": METHOD_RK4,
                 "dopri5": METHOD_DOPRI5}
-# Work rows each stepper needs (see advance): dopri5 uses k2..k6 and a stage state.
-WORK_ROWS = 6
 
-# Dormand-Prince 5(4) tableau (Dormand & Prince 1980; Hairer, Norsett & Wanner, Table II.5.2).
-A21 = 1.0 / 5.0
-A31, A32 = 3.0 / 40.0, 9.0 / 40.0
-A41, A42, A43 = 44.0 / 45.0, -56.0 / 15.0, 32.0 / 9.0
-A51, A52, A53, A54 = 19372.0 / 6561.0, -25360.0 / 2187.0, 64448.0 / 6561.0, -212.0 / 729.0
-A61, A62, A63, A64, A65 = 9017.0 / 3168.0, -355.0 / 33.0, 46732.0 / 5247.0, 49.0 / 176.0, -5103.0 / 18656.0
-B1, B3, B4, B5, B6 = 35.0 / 384.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0
-# Error coefficients: 5th-order weights minus the embedded 4th-order ones (b - b_hat).
-E1, E3, E4, E5, E6, E7 = (71.0 / 57600.0, -71.0 / 16695.0, 71.0 / 1920.0, -17253.0 / 339200.0, 22.0 / 525.0,
-                          -1.0 / 40.0)
+# All four methods are explicit Runge-Kutta tableaux stepped by one loop (rk_step), so the right-hand
+# side has a single call site: hand-unrolled steppers inlined the media code ~50 times into the
+# tracer and doubled its Numba compile time. Rows: METHOD_*; STAGES[m] stages; A[m] (7, 7) stage
+# coefficients, B[m] (7,) weights, E[m] (7,) error weights (b - b_hat; zero for the fixed-step methods).
+MAX_STAGES = 7
+STAGES = np.array([1, 2, 4, 7], dtype=np.int64)
+# New right-hand-side evaluations per step (k1 = f(y0) is given; DOPRI5's 7th stage is f(y1), FSAL).
+EVALS_PER_STEP = STAGES - 1
+WORK_ROWS = MAX_STAGES + 1  # the stages K and one stage state
+A = np.zeros((4, MAX_STAGES, MAX_STAGES))
+B = np.zeros((4, MAX_STAGES))
+E = np.zeros((4, MAX_STAGES))
+B[METHOD_EULER, 0] = 1.0
+# Step doubling as a tableau: two Euler half steps (y0 + h/2 k1 + h/2 k2), error against one full step.
+A[METHOD_EULER_ADAPTIVE, 1, 0] = 0.5
+B[METHOD_EULER_ADAPTIVE, :2] = [0.5, 0.5]
+E[METHOD_EULER_ADAPTIVE, :2] = [-0.5, 0.5]
+A[METHOD_RK4, 1, 0] = 0.5
+A[METHOD_RK4, 2, 1] = 0.5
+A[METHOD_RK4, 3, 2] = 1.0
+B[METHOD_RK4, :4] = [1.0 / 6.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 6.0]
+# Dormand-Prince 5(4) (Dormand & Prince 1980; Hairer, Norsett & Wanner I, Table II.5.2).
+A[METHOD_DOPRI5, 1, :1] = [1.0 / 5.0]
+A[METHOD_DOPRI5, 2, :2] = [3.0 / 40.0, 9.0 / 40.0]
+A[METHOD_DOPRI5, 3, :3] = [44.0 / 45.0, -56.0 / 15.0, 32.0 / 9.0]
+A[METHOD_DOPRI5, 4, :4] = [19372.0 / 6561.0, -25360.0 / 2187.0, 64448.0 / 6561.0, -212.0 / 729.0]
+A[METHOD_DOPRI5, 5, :5] = [9017.0 / 3168.0, -355.0 / 33.0, 46732.0 / 5247.0, 49.0 / 176.0, -5103.0 / 18656.0]
+A[METHOD_DOPRI5, 6, :6] = [35.0 / 384.0, 0.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0]
+B[METHOD_DOPRI5, :6] = A[METHOD_DOPRI5, 6, :6]
+E[METHOD_DOPRI5, :] = [71.0 / 57600.0, 0.0, -71.0 / 16695.0, 71.0 / 1920.0, -17253.0 / 339200.0, 22.0 / 525.0,
+                       -1.0 / 40.0]
+
+# Step-size control. DOPRI5 (Hairer, Norsett & Wanner I, II.4): h_new = h min(FAC_MAX, max(FAC_MIN,
+# SAFETY err^(-1/5))), no growth right after a rejection. Step doubling (paper Sec. 4.2): halve and
+# retry above the tolerance, double after a step whose error is below DOUBLING_GROW_BELOW of it
+# (Euler's local error grows 4x when h doubles), keep h in between.
+SAFETY = 0.9
+FAC_MIN = 0.2
+FAC_MAX = 5.0
+DOUBLING_GROW_BELOW = 0.25
+# Consecutive rejected trial steps before giving up (h shrinks by >= 2 each time): the ray is lost.
+MAX_REJECTS_IN_A_ROW = 200
+# Restarts per event landing (Newton/secant converge superlinearly: 1-4 in practice; the bisection
+# safeguard shrinks any bracket below float64 resolution within 60).
+MAX_LAND_ITERS = 60
+
+EVENT_PLANE = 1  # g(y) = m.x - h for a plane (m, h)
+EVENT_TIME = 2  # g(y) = t - t_end
 
 
 def make_media(
@@ -149,105 +194,77 @@ def rhs(media, cell, y, out):
 
 
 @nb.njit(**NJIT_FLAGS)
+def rk_step(method, media, cell, y0, k1, h, y1, yerr, work):
+    """One explicit Runge-Kutta step of tableau ``method`` from y0 (k1 = f(y0) given) into y1.
+
+    work : (WORK_ROWS, NY) scratch; on return work[s] holds stage s (work[STAGES-1] = f(y1) for DOPRI5).
+    yerr = h sum_j E_j k_j (zeros for the fixed-step tableaux). False when a stage saw unphysical media.
+    """
+    n_st = STAGES[method]
+    yt = work[MAX_STAGES]
+    ok = True
+    for i in range(NY):
+        work[0, i] = k1[i]
+    for st in range(1, n_st):
+        for i in range(NY):
+            acc = 0.0
+            for j in range(st):
+                acc += A[method, st, j] * work[j, i]
+            yt[i] = y0[i] + h * acc
+        ok = rhs(media, cell, yt, work[st]) and ok
+    for i in range(NY):
+        acc = 0.0
+        err = 0.0
+        for j in range(n_st):
+            acc += B[method, j] * work[j, i]
+            err += E[method, j] * work[j, i]
+        y1[i] = y0[i] + h * acc
+        yerr[i] = h * err
+    return ok
+
+
+@nb.njit(**NJIT_FLAGS)
 def euler_step(y0, k1, h, y1):
-    """Explicit Euler: y1 = y0 + h k1 (no evaluation; the paper's Eq. 2)."""
+    """Explicit Euler, y1 = y0 + h k1 (the paper's Eq. 2); no evaluation."""
     for i in range(NY):
         y1[i] = y0[i] + h * k1[i]
 
 
 @nb.njit(**NJIT_FLAGS)
 def euler_doubling_step(media, cell, y0, k1, h, y1, yerr, work):
-    """Two Euler half steps into y1; yerr = y1 - (one full Euler step): the step-doubling estimate.
-
-    work : (>= 2, NY) scratch. One new evaluation (at the midpoint).
-    """
-    hh = 0.5 * h
-    ym = work[0]
-    km = work[1]
-    for i in range(NY):
-        ym[i] = y0[i] + hh * k1[i]
-    ok = rhs(media, cell, ym, km)
-    for i in range(NY):
-        y1[i] = ym[i] + hh * km[i]
-        yerr[i] = y1[i] - (y0[i] + h * k1[i])
-    return ok
+    """Two Euler half steps into y1; yerr = y1 - (one full Euler step), the step-doubling error estimate."""
+    return rk_step(METHOD_EULER_ADAPTIVE, media, cell, y0, k1, h, y1, yerr, work)
 
 
 @nb.njit(**NJIT_FLAGS)
 def rk4_step(media, cell, y0, k1, h, y1, work):
-    """Classical RK4 step into y1. work : (>= 4, NY) scratch. Three new evaluations."""
-    k2 = work[0]
-    k3 = work[1]
-    k4 = work[2]
-    yt = work[3]
-    for i in range(NY):
-        yt[i] = y0[i] + 0.5 * h * k1[i]
-    ok = rhs(media, cell, yt, k2)
-    for i in range(NY):
-        yt[i] = y0[i] + 0.5 * h * k2[i]
-    ok = rhs(media, cell, yt, k3) and ok
-    for i in range(NY):
-        yt[i] = y0[i] + h * k3[i]
-    ok = rhs(media, cell, yt, k4) and ok
-    for i in range(NY):
-        y1[i] = y0[i] + h * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]) / 6.0
-    return ok
+    """Classical RK4 step into y1 (three new evaluations)."""
+    return rk_step(METHOD_RK4, media, cell, y0, k1, h, y1, work[MAX_STAGES - 1], work)
 
 
 @nb.njit(**NJIT_FLAGS)
 def dopri5_step(media, cell, y0, k1, h, y1, k7, yerr, work):
     """Dormand-Prince 5(4) step: 5th-order y1 (local extrapolation), k7 = f(y1) (FSAL: the next step's
-    k1) and the embedded error estimate yerr = y1 - y1_hat (4th order). work : (>= 6, NY) scratch.
-    Six new evaluations per step."""
-    k2 = work[0]
-    k3 = work[1]
-    k4 = work[2]
-    k5 = work[3]
-    k6 = work[4]
-    yt = work[5]
+    k1) and the embedded error estimate yerr = y1 - y1_hat (4th order). Six new evaluations."""
+    ok = rk_step(METHOD_DOPRI5, media, cell, y0, k1, h, y1, yerr, work)
     for i in range(NY):
-        yt[i] = y0[i] + h * A21 * k1[i]
-    ok = rhs(media, cell, yt, k2)
-    for i in range(NY):
-        yt[i] = y0[i] + h * (A31 * k1[i] + A32 * k2[i])
-    ok = rhs(media, cell, yt, k3) and ok
-    for i in range(NY):
-        yt[i] = y0[i] + h * (A41 * k1[i] + A42 * k2[i] + A43 * k3[i])
-    ok = rhs(media, cell, yt, k4) and ok
-    for i in range(NY):
-        yt[i] = y0[i] + h * (A51 * k1[i] + A52 * k2[i] + A53 * k3[i] + A54 * k4[i])
-    ok = rhs(media, cell, yt, k5) and ok
-    for i in range(NY):
-        yt[i] = y0[i] + h * (A61 * k1[i] + A62 * k2[i] + A63 * k3[i] + A64 * k4[i] + A65 * k5[i])
-    ok = rhs(media, cell, yt, k6) and ok
-    for i in range(NY):
-        y1[i] = y0[i] + h * (B1 * k1[i] + B3 * k3[i] + B4 * k4[i] + B5 * k5[i] + B6 * k6[i])
-    ok = rhs(media, cell, y1, k7) and ok
-    for i in range(NY):
-        yerr[i] = h * (E1 * k1[i] + E3 * k3[i] + E4 * k4[i] + E5 * k5[i] + E6 * k6[i] + E7 * k7[i])
+        k7[i] = work[6, i]
     return ok
 
 
 @nb.njit(**NJIT_FLAGS)
 def advance(method, media, cell, y0, k1, h, y1, knew, yerr, work):
-    """One step of ``method`` (METHOD_*) from y0 with step h (sigma units) into y1.
+    """The accepted-step map of ``method``: one step from y0 with step h (sigma units) into y1.
 
-    Returns (ok, has_knew): has_knew when ``knew`` already holds f(y1) (DOPRI5's FSAL stage); yerr
-    holds the error estimate of the adaptive methods (zeros for the fixed-step ones). This is the
-    accepted-step map: a step restarted with a reduced length (boundary or time limit) calls it again.
+    Returns (ok, has_knew): has_knew when ``knew`` holds f(y1) (DOPRI5's FSAL stage). A step restarted
+    with a reduced length (boundary or time limit) calls this again.
     """
-    if method == METHOD_EULER:
-        euler_step(y0, k1, h, y1)
+    ok = rk_step(method, media, cell, y0, k1, h, y1, yerr, work)
+    if method == METHOD_DOPRI5:
         for i in range(NY):
-            yerr[i] = 0.0
-        return True, False
-    if method == METHOD_EULER_ADAPTIVE:
-        return euler_doubling_step(media, cell, y0, k1, h, y1, yerr, work), False
-    if method == METHOD_RK4:
-        for i in range(NY):
-            yerr[i] = 0.0
-        return rk4_step(media, cell, y0, k1, h, y1, work), False
-    return dopri5_step(media, cell, y0, k1, h, y1, knew, yerr, work), True
+            knew[i] = work[6, i]
+        return ok, True
+    return ok, False
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -265,3 +282,130 @@ def error_norm(yerr, tol):
         if a > e:
             e = a
     return e / tol
+
+
+@nb.njit(**NJIT_FLAGS)
+def controlled_step(method, media, cell, y0, k1, h, step_m, tol, y1, knew, yerr, work):
+    """The accepted step from y0 into y1: fixed (h = step_m / n(y0), about step_m metres of arc) for
+    Euler and RK4, error-controlled from the trial step h for step doubling and DOPRI5.
+
+    Returns (ok, has_knew, h_used, h_next, rejected).
+    """
+    fixed = method == METHOD_EULER or method == METHOD_RK4
+    if fixed:
+        h = step_m / k1[7]
+    rejected = 0
+    while True:
+        ok, has = advance(method, media, cell, y0, k1, h, y1, knew, yerr, work)
+        if fixed:
+            return ok, has, h, h, rejected
+        err = error_norm(yerr, tol) if ok else math.inf
+        if err <= 1.0:
+            if method == METHOD_EULER_ADAPTIVE:
+                return True, has, h, (2.0 * h if err < DOUBLING_GROW_BELOW else h), rejected
+            fac = FAC_MAX if err == 0.0 else min(FAC_MAX, max(FAC_MIN, SAFETY * err ** -0.2))
+            return True, has, h, h * (min(fac, 1.0) if rejected > 0 else fac), rejected
+        rejected += 1
+        if rejected > MAX_REJECTS_IN_A_ROW:
+            return False, has, h, h, rejected
+        if method == METHOD_EULER_ADAPTIVE:
+            h *= 0.5
+        else:
+            h *= FAC_MIN if not (err < math.inf) else max(FAC_MIN, SAFETY * err ** -0.2)
+
+
+@nb.njit(**NJIT_FLAGS)
+def plane_g(pl, y):
+    """Signed distance m.x - h (m) of the state's position to plane ``pl`` = (mx, my, mz, h)."""
+    return pl[0] * y[0] + pl[1] * y[1] + pl[2] * y[2] - pl[3]
+
+
+@nb.njit(**NJIT_FLAGS)
+def event_g(kind, pl, t_end, y):
+    """Event function: plane_g for EVENT_PLANE, t - t_end (s) for EVENT_TIME."""
+    if kind == EVENT_TIME:
+        return y[6] - t_end
+    return plane_g(pl, y)
+
+
+@nb.njit(**NJIT_FLAGS)
+def event_rate(kind, pl, y, c_ref):
+    """dg/dsigma along the ray: m.p for a plane, n^2 / c_ref ~ |p|^2 / c_ref for the time."""
+    if kind == EVENT_TIME:
+        return (y[3] * y[3] + y[4] * y[4] + y[5] * y[5]) / c_ref
+    return pl[0] * y[3] + pl[1] * y[4] + pl[2] * y[5]
+
+
+@nb.njit(**NJIT_FLAGS)
+def first_guess(method, kind, pl, y0, y1, h, g0, g1, c_ref):
+    """First guess in [0, h] for the event crossing of the step y0 -> y1 (g0 <= 0 < g1): the chord for
+    Euler (its x and t are linear in h), otherwise the root of the cubic Hermite dense output of g
+    (values and sigma-rates at both ends: no new evaluation)."""
+    if g0 >= 0.0:
+        return 0.0
+    f = -g0 / (g1 - g0)
+    if method == METHOD_EULER:
+        return f * h
+    d0 = h * event_rate(kind, pl, y0, c_ref)
+    d1 = h * event_rate(kind, pl, y1, c_ref)
+    lo = 0.0
+    hi = 1.0
+    u = f
+    for _ in range(50):  # safeguarded Newton on the cubic
+        u2 = u * u
+        u3 = u2 * u
+        gu = (2 * u3 - 3 * u2 + 1) * g0 + (u3 - 2 * u2 + u) * d0 + (3 * u2 - 2 * u3) * g1 + (u3 - u2) * d1
+        du = (6 * u2 - 6 * u) * g0 + (3 * u2 - 4 * u + 1) * d0 + (6 * u - 6 * u2) * g1 + (3 * u2 - 2 * u) * d1
+        if gu > 0.0:
+            hi = u
+        else:
+            lo = u
+        nxt = u - gu / du
+        if not (nxt > lo and nxt < hi):
+            nxt = 0.5 * (lo + hi)
+        if abs(nxt - u) <= 1e-15:
+            return nxt * h
+        u = nxt
+    return u * h
+
+
+@nb.njit(**NJIT_FLAGS)
+def land(method, media, cell, y0, k1, lo, glo, hi, ghi, hk, kind, pl, t_end, eps, y1, knew, yerr, work):
+    """Restart the step from y0 with reduced lengths until |g(advance(y0, h))| <= eps.
+
+    One Newton step with the event rate at the landed state as derivative, then secant steps through
+    the last two restarts; regula falsi / bisection inside the bracket ``g(lo) = glo <= 0 < ghi = g(hi)``
+    whenever a step leaves it. ``hk`` is the first guess. Leaves y1 = advance(y0, h).
+    Returns (h, ok, has_knew, restarts).
+    """
+    restarts = 0
+    ok = True
+    has = False
+    h_prev = math.nan
+    g_prev = math.nan
+    for _ in range(MAX_LAND_ITERS):
+        ok, has = advance(method, media, cell, y0, k1, hk, y1, knew, yerr, work)
+        restarts += 1
+        if not ok:
+            break
+        g = event_g(kind, pl, t_end, y1)
+        if abs(g) <= eps:
+            break
+        if g > 0.0:
+            hi = hk
+            ghi = g
+        else:
+            lo = hk
+            glo = g
+        rate = event_rate(kind, pl, y1, media[9]) if restarts == 1 else (g - g_prev) / (hk - h_prev)
+        h_prev = hk
+        g_prev = g
+        nxt = hk - g / rate
+        if not (nxt > lo and nxt < hi):
+            nxt = lo + (hi - lo) * (-glo) / (ghi - glo)
+            if not (nxt > lo and nxt < hi):
+                nxt = 0.5 * (lo + hi)
+        if nxt == hk:
+            break
+        hk = nxt
+    return hk, ok, has, restarts

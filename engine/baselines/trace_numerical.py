@@ -10,15 +10,17 @@ Boundaries: the flat ground ``z = ground_z`` reflects specularly, the domain sid
 ``z = domain_max[2]`` is open or reflecting; with mesh media the CellMesh's boundary faces also count
 (``BOUNDARY_REFLECT`` reflects with the face's plane normal, ``BOUNDARY_OPEN`` exits). A boundary is
 detected when a step ends beyond it (a step that leaves and re-enters within itself is not seen: keep
-steps short against the ray's curvature). The crossing is located on the chord of the step (the first
-guess ``h g0 / (g0 - g1)``) and then refined by Illinois regula falsi on the *restarted* step: each
-guess re-takes the step from its start with the reduced length (counted as a restart, the paper's
-Table 3), until the ray lands within ``LAND_REL (1 + |x|)`` metres of the plane; the point is then
-snapped onto the plane and the direction reflected (``p' = p - 2 (p.m) m``). Straight rays need one
-restart. The time limit is a boundary in t: the last step is restarted so that the ray stops at
-exactly ``max_time_s``. A ray sitting on a boundary whose step still ends beyond it (curving out of a
-plane it grazes) is searched for an interior re-entry by halving; if there is none it *slides*: the end
-point is projected onto the plane and the outward part of p reflected (one reflection).
+steps short against the ray's curvature). The crossing is first located on the step's chord (Euler,
+whose x and t are linear in the step) or on its cubic Hermite dense output (x, p at both ends: no
+new evaluation), then the step is RESTARTED from its start with that reduced length (counted: the
+paper's Table 3) and refined by Newton / secant iterations on the restarted step (safeguarded inside
+the bracket) until the ray lands within ``LAND_REL (1 + |x|)`` metres of the plane; the point is
+snapped onto the plane and the direction reflected (``p' = p - 2 (p.m) m``). Straight rays land with
+one restart, curved ones typically with 2-4. The time limit is a boundary in t: the last step is
+restarted so that the ray stops at exactly ``max_time_s``. A ray sitting on a boundary whose step
+still ends beyond it (curving out of a plane it grazes) is searched for an interior re-entry by
+halving; if there is none it *slides*: the end point is projected onto the plane and the outward part
+of p reflected (one reflection).
 
 End states as in the analytic tracer: time_limit, reflection_limit, exited, step_limit (``max_steps``
 accepted steps), lost (n <= 0, non-finite state, step size underflow, or a mesh walk that did not
@@ -34,17 +36,20 @@ import numba as nb
 import numpy as np
 
 from bentray.engine.baselines.integrators import (
+    EVALS_PER_STEP,
+    EVENT_PLANE,
+    EVENT_TIME,
     MEDIA_MESH,
     METHOD_CODES,
-    METHOD_EULER,
-    METHOD_EULER_ADAPTIVE,
-    METHOD_RK4,
     NY,
     WORK_ROWS,
     advance,
-    error_norm,
+    controlled_step,
+    first_guess,
+    land,
     make_media,
     media_n,
+    plane_g,
     rhs,
 )
 from bentray.engine.baselines.mesh_media import WALK_FAILED, walk
@@ -75,51 +80,12 @@ LAND_REL = 1e-13
 # ... and on the time limit when |t - max_time| <= TIME_LAND_REL max(1, max_time) seconds (then t is
 # set to max_time exactly).
 TIME_LAND_REL = 1e-14
-# Regula falsi iterations per landing (Illinois converges superlinearly: 2-5 in practice; bisection
-# safeguard, so 60 iterations shrink any bracket below float64 resolution).
-MAX_LAND_ITERS = 60
 # Halvings of a step tried to find an interior point back inside a plane the ray starts on.
 MAX_GRAZE_HALVINGS = 8
 # A landing that reveals an earlier crossing of another boundary is re-targeted at most this often.
 MAX_RETARGETS = 8
-# Step-size controller of DOPRI5 (Hairer, Norsett & Wanner II.4): h_new = h min(FAC_MAX, max(FAC_MIN,
-# SAFETY err^(-1/5))); no growth right after a rejection.
-SAFETY = 0.9
-FAC_MIN = 0.2
-FAC_MAX = 5.0
-# Step doubling (paper Sec. 4.2): halve and retry above the tolerance; double after a step whose
-# error is below a quarter of it (Euler's local error grows 4x when h doubles); keep h in between.
-DOUBLING_GROW_BELOW = 0.25
-# Consecutive rejected trial steps before the ray is declared lost (h shrinks by >= 2 each time).
-MAX_REJECTS_IN_A_ROW = 200
 
-EV_NONE = 0
-EV_PLANE = 1
-EV_TIME = 2
-
-
-@nb.njit(**NJIT_FLAGS)
-def _evals(method):
-    """New right-hand-side evaluations per call of integrators.advance."""
-    if method == METHOD_EULER:
-        return 0
-    if method == METHOD_EULER_ADAPTIVE:
-        return 1
-    if method == METHOD_RK4:
-        return 3
-    return 7
-
-
-@nb.njit(**NJIT_FLAGS)
-def _plane_g(pl, y):
-    return pl[0] * y[0] + pl[1] * y[1] + pl[2] * y[2] - pl[3]
-
-
-@nb.njit(**NJIT_FLAGS)
-def _event_g(kind, pl, max_time, y):
-    if kind == EV_TIME:
-        return y[6] - max_time
-    return _plane_g(pl, y)
+EVENT_NONE = 0
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -131,7 +97,7 @@ def _detect(y0, y1, bplanes, btags, media, cell, max_time, eps_x, eps_t, evp, gr
     Returns (kind, tag, frac, g0, g1, grz_tag, walk_ok); a plane event's plane is copied into evp (4,).
     """
     best = 2.0
-    kind = EV_NONE
+    kind = EVENT_NONE
     tag = 0
     bg0 = 0.0
     bg1 = 0.0
@@ -141,7 +107,7 @@ def _detect(y0, y1, bplanes, btags, media, cell, max_time, eps_x, eps_t, evp, gr
     if g1t > eps_t:
         g0t = y0[6] - max_time
         best = -g0t / (g1t - g0t) if g0t < 0.0 else 0.0
-        kind = EV_TIME
+        kind = EVENT_TIME
         bg0 = g0t
         bg1 = g1t
     n_planes = bplanes.shape[0]
@@ -156,10 +122,10 @@ def _detect(y0, y1, bplanes, btags, media, cell, max_time, eps_x, eps_t, evp, gr
             extra = 1
     for j in range(n_planes + extra):
         pl = bplanes[j] if j < n_planes else media[3][cell1, face]
-        g1 = _plane_g(pl, y1)
+        g1 = plane_g(pl, y1)
         if not (g1 > eps_x):
             continue
-        g0 = _plane_g(pl, y0)
+        g0 = plane_g(pl, y0)
         pm = pl[0] * y0[3] + pl[1] * y0[4] + pl[2] * y0[5]
         jtag = btags[j] if j < n_planes else media[4][cell1, face]
         if g0 >= -eps_x and pm <= 0.0:
@@ -172,99 +138,13 @@ def _detect(y0, y1, bplanes, btags, media, cell, max_time, eps_x, eps_t, evp, gr
         f = -g0 / (g1 - g0) if g0 < 0.0 else 0.0
         if f < best:
             best = f
-            kind = EV_PLANE
+            kind = EVENT_PLANE
             tag = jtag
             bg0 = g0
             bg1 = g1
             for i in range(4):
                 evp[i] = pl[i]
     return kind, tag, best, bg0, bg1, grz_tag, walk_ok
-
-
-@nb.njit(**NJIT_FLAGS)
-def _event_rate(kind, pl, y, c_ref):
-    """d g / d sigma of the event function along the ray: m.p for a plane, n^2 / c_ref ~ |p|^2 / c_ref for t."""
-    if kind == EV_TIME:
-        return (y[3] * y[3] + y[4] * y[4] + y[5] * y[5]) / c_ref
-    return pl[0] * y[3] + pl[1] * y[4] + pl[2] * y[5]
-
-
-@nb.njit(**NJIT_FLAGS)
-def _first_guess(method, kind, pl, y0, y1, h, g0, g1, c_ref):
-    """First landing guess in [0, h]: the chord for Euler (its x and t are linear in h), otherwise the
-    root of the cubic Hermite dense output of g over the step (values and sigma-rates at both ends)."""
-    if g0 >= 0.0:
-        return 0.0
-    f = -g0 / (g1 - g0)
-    if method == METHOD_EULER:
-        return f * h
-    d0 = h * _event_rate(kind, pl, y0, c_ref)
-    d1 = h * _event_rate(kind, pl, y1, c_ref)
-    lo = 0.0
-    hi = 1.0
-    u = f
-    for _ in range(50):  # safeguarded Newton on the cubic (no right-hand-side evaluations)
-        u2 = u * u
-        u3 = u2 * u
-        gu = (2 * u3 - 3 * u2 + 1) * g0 + (u3 - 2 * u2 + u) * d0 + (3 * u2 - 2 * u3) * g1 + (u3 - u2) * d1
-        du = (6 * u2 - 6 * u) * g0 + (3 * u2 - 4 * u + 1) * d0 + (6 * u - 6 * u2) * g1 + (3 * u2 - 2 * u) * d1
-        if gu > 0.0:
-            hi = u
-        else:
-            lo = u
-        nxt = u - gu / du
-        if not (nxt > lo and nxt < hi):
-            nxt = 0.5 * (lo + hi)
-        if abs(nxt - u) <= 1e-15:
-            u = nxt
-            break
-        u = nxt
-    return u * h
-
-
-@nb.njit(**NJIT_FLAGS)
-def _land(method, media, cell, y0, k1, lo, glo, hi, ghi, hk, kind, pl, max_time, eps, y1, knew, yerr, work):
-    """Find h in [lo, hi] with |g(advance(y0, h))| <= eps on the restarted step: one Newton step with the
-    event rate at the landed state as derivative, then secant steps through the last two restarts;
-    regula falsi / bisection inside the bracket ``g(lo) = glo <= 0 < ghi = g(hi)`` whenever a step
-    leaves it. ``hk`` is the first guess.
-
-    Leaves y1 = advance(y0, h). Returns (h, ok, has_knew, restarts).
-    """
-    restarts = 0
-    ok = True
-    has = False
-    h_prev = math.nan
-    g_prev = math.nan
-    for _ in range(MAX_LAND_ITERS):
-        ok, has = advance(method, media, cell, y0, k1, hk, y1, knew, yerr, work)
-        restarts += 1
-        if not ok:
-            break
-        g = _event_g(kind, pl, max_time, y1)
-        if abs(g) <= eps:
-            break
-        if g > 0.0:
-            hi = hk
-            ghi = g
-        else:
-            lo = hk
-            glo = g
-        if restarts == 1:
-            rate = _event_rate(kind, pl, y1, media[9])
-        else:
-            rate = (g - g_prev) / (hk - h_prev)
-        h_prev = hk
-        g_prev = g
-        nxt = hk - g / rate
-        if not (nxt > lo and nxt < hi):
-            nxt = lo + (hi - lo) * (-glo) / (ghi - glo)
-            if not (nxt > lo and nxt < hi):
-                nxt = 0.5 * (lo + hi)
-        if nxt == hk:
-            break
-        hk = nxt
-    return hk, ok, has, restarts
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -325,6 +205,79 @@ def _finite(y):
 
 
 @nb.njit(**NJIT_FLAGS)
+def _resolve_events(method, media, bplanes, btags, cell, y0, k1, h, max_time, eps_x, eps_t, y1, knew, yerr, work,
+                    evp, grz, scratch):
+    """Shorten the step y0 -> y1 (length h) to the earliest boundary or time event, by restarts.
+
+    On return y1 is the final end state (on the event's plane / at max_time, or the untouched step).
+    Returns (ok, has_knew, h_end, ev_kind, ev_tag, slide_tag, moved, restarts): ``evp`` holds the
+    event's plane, ``grz`` a grazed plane the ray slid along (slide_tag != 0), ``moved`` whether x was
+    snapped or projected (so f(y1) must be re-evaluated).
+    """
+    kind, tag, f, g0, g1, grz_tag, ok = _detect(y0, y1, bplanes, btags, media, cell, max_time, eps_x, eps_t,
+                                                evp, grz)
+    ev_kind = EVENT_NONE
+    ev_tag = 0
+    h_end = h
+    moved = False
+    has = True
+    restarts = 0
+    for _ in range(MAX_RETARGETS + 1):
+        if kind == EVENT_NONE or not ok:
+            break
+        hk = first_guess(method, kind, evp, y0, y1, h_end, g0, g1, media[9])
+        h_end, ok, has, nr = land(method, media, cell, y0, k1, 0.0, min(g0, 0.0), h_end, g1, hk, kind, evp,
+                                   max_time, eps_t if kind == EVENT_TIME else eps_x, y1, knew, yerr, work)
+        restarts += nr
+        ev_kind = kind
+        ev_tag = tag
+        if kind == EVENT_TIME:
+            y1[6] = max_time
+        else:
+            gg = plane_g(evp, y1)
+            for i in range(3):
+                y1[i] -= gg * evp[i]
+            moved = True
+        # an earlier crossing of another boundary revealed by the landing re-targets it
+        kind, tag, f, g0, g1, _, walk_ok = _detect(y0, y1, bplanes, btags, media, cell, max_time, eps_x, eps_t,
+                                                   evp, scratch)
+        ok = ok and walk_ok
+    slide_tag = 0
+    g_end = plane_g(grz, y1)
+    if ok and grz_tag != 0 and g_end > eps_x:
+        # the ray left a plane it sits on: find an interior re-entry by halving, else slide along it
+        hk = h_end
+        glo = 0.0
+        found = False
+        for _ in range(MAX_GRAZE_HALVINGS):
+            hk *= 0.5
+            ok, has = advance(method, media, cell, y0, k1, hk, y1, knew, yerr, work)
+            restarts += 1
+            glo = plane_g(grz, y1)
+            if not ok or glo < -eps_x:
+                found = ok
+                break
+        if found:
+            h_end, ok, has, nr = land(method, media, cell, y0, k1, hk, glo, h_end, g_end,
+                                       hk + (h_end - hk) * (-glo) / (g_end - glo), EVENT_PLANE, grz, max_time,
+                                       eps_x, y1, knew, yerr, work)
+            ev_kind = EVENT_PLANE
+            ev_tag = grz_tag
+            for i in range(4):
+                evp[i] = grz[i]
+        else:
+            ok, has = advance(method, media, cell, y0, k1, h_end, y1, knew, yerr, work)
+            nr = 1
+            slide_tag = grz_tag
+        restarts += nr
+        gg = plane_g(grz, y1)
+        for i in range(3):
+            y1[i] -= gg * grz[i]
+        moved = True
+    return ok, has, h_end, ev_kind, ev_tag, slide_tag, moved, restarts
+
+
+@nb.njit(**NJIT_FLAGS)
 def trace_one(method, media, bplanes, btags, x_start, d_start, cell_start, max_time, max_reflections, max_steps,
               step_m, tol, renormalize, record, dt_sample, path_pts, path_t, path_s, base, cap, out_state,
               out_counts):
@@ -342,7 +295,6 @@ def trace_one(method, media, bplanes, btags, x_start, d_start, cell_start, max_t
     work = np.zeros((WORK_ROWS, NY))
     evp = np.zeros(4)
     grz = np.zeros(4)
-    g = np.zeros(3)
     status = STATUS_RUNNING
     reflections = 0
     crossings = 0
@@ -358,7 +310,7 @@ def trace_one(method, media, bplanes, btags, x_start, d_start, cell_start, max_t
     eps_t = TIME_LAND_REL * max(1.0, max_time)
     n0 = math.nan
     if media[0] != MEDIA_MESH or cell >= 0:
-        n0 = media_n(media, cell, y0, g)
+        n0 = media_n(media, cell, y0, ys)
     if not (n0 > 0.0 and math.isfinite(n0) and nrm > 0.0):
         status = STATUS_LOST
     else:
@@ -366,7 +318,7 @@ def trace_one(method, media, bplanes, btags, x_start, d_start, cell_start, max_t
             y0[3 + i] = n0 * d_start[i] / nrm
         eps0 = LAND_REL * (1.0 + max(abs(y0[0]), abs(y0[1]), abs(y0[2])))
         for j in range(bplanes.shape[0]):
-            if _plane_g(bplanes[j], y0) > eps0:
+            if plane_g(bplanes[j], y0) > eps0:
                 status = STATUS_LOST  # origin outside the domain
         if not rhs(media, cell, y0, k1):
             status = STATUS_LOST
@@ -374,117 +326,33 @@ def trace_one(method, media, bplanes, btags, x_start, d_start, cell_start, max_t
     if record:
         count = _emit(path_pts, path_t, path_s, base, cap, count, y0)
     t_last = 0.0
-    h = step_m / n0 if n0 > 0.0 else 0.0
-    h_next = h
-    n_per = _evals(method)
+    h_next = step_m / n0 if n0 > 0.0 else 0.0
+    n_per = EVALS_PER_STEP[method]
     while status == STATUS_RUNNING:
         if steps >= max_steps:
             status = STATUS_STEP_LIMIT
             break
-        # ---- trial step (accepted step map into y1) ----
-        ok = True
-        has = False
-        if method == METHOD_EULER or method == METHOD_RK4:
-            h = step_m / k1[7]
-            ok, has = advance(method, media, cell, y0, k1, h, y1, knew, yerr, work)
-            evals += n_per
-        else:
-            h = h_next
-            run = 0
-            while True:
-                ok, has = advance(method, media, cell, y0, k1, h, y1, knew, yerr, work)
-                evals += n_per
-                err = error_norm(yerr, tol) if ok else math.inf
-                if method == METHOD_EULER_ADAPTIVE:
-                    if err <= 1.0:
-                        h_next = 2.0 * h if err < DOUBLING_GROW_BELOW else h
-                        break
-                    h *= 0.5
-                else:
-                    if err <= 1.0:
-                        fac = FAC_MAX if err == 0.0 else min(FAC_MAX, max(FAC_MIN, SAFETY * err ** -0.2))
-                        h_next = h * (min(fac, 1.0) if run > 0 else fac)
-                        break
-                    h *= FAC_MIN if not (err < math.inf) else max(FAC_MIN, SAFETY * err ** -0.2)
-                rejected += 1
-                run += 1
-                if run > MAX_REJECTS_IN_A_ROW or not (h > 0.0):
-                    ok = False
-                    break
+        ok, has, h, h_next, rej = controlled_step(method, media, cell, y0, k1, h_next, step_m, tol, y1, knew, yerr,
+                                              work)
+        rejected += rej
+        evals += (rej + 1) * n_per
         if not ok:
             status = STATUS_LOST
             break
         steps += 1
-        # ---- boundary and time events: restart the step to land on the earliest one ----
         eps_x = LAND_REL * (1.0 + max(abs(y1[0]), abs(y1[1]), abs(y1[2])))
-        kind, tag, f, g0, g1, grz_tag, walk_ok = _detect(y0, y1, bplanes, btags, media, cell, max_time,
-                                                         eps_x, eps_t, evp, grz)
-        ev_kind = EV_NONE
-        ev_tag = 0
-        h_end = h
-        moved = False
-        for _ in range(MAX_RETARGETS + 1):
-            if kind == EV_NONE or not (ok and walk_ok):
-                break
-            hk = _first_guess(method, kind, evp, y0, y1, h_end, g0, g1, media[9])
-            h_end, ok, has, nr = _land(method, media, cell, y0, k1, 0.0, min(g0, 0.0), h_end, g1, hk, kind,
-                                       evp, max_time, eps_t if kind == EV_TIME else eps_x, y1, knew, yerr, work)
-            restarts += nr
-            evals += nr * n_per
-            ev_kind = kind
-            ev_tag = tag
-            if kind == EV_TIME:
-                y1[6] = max_time
-            else:
-                gg = _plane_g(evp, y1)
-                for i in range(3):
-                    y1[i] -= gg * evp[i]
-                moved = True
-            # an earlier crossing of another boundary revealed by the landing re-targets it
-            kind, tag, f, g0, g1, _, walk_ok = _detect(y0, y1, bplanes, btags, media, cell, max_time,
-                                                       eps_x, eps_t, evp, ys)
-        if not (ok and walk_ok):
-            status = STATUS_LOST
-            break
-        # ---- grazing departure from a plane the ray sits on: interior re-entry, else slide ----
-        slide_tag = 0
-        g_end = _plane_g(grz, y1)
-        if grz_tag != 0 and g_end > eps_x:
-            hk = h_end
-            glo = 0.0
-            found = False
-            for _ in range(MAX_GRAZE_HALVINGS):
-                hk *= 0.5
-                ok, has = advance(method, media, cell, y0, k1, hk, y1, knew, yerr, work)
-                restarts += 1
-                evals += n_per
-                glo = _plane_g(grz, y1)
-                if not ok or glo < -eps_x:
-                    found = ok
-                    break
-            if found:  # the ray re-enters and crosses the plane again inside the step: land there
-                h_end, ok, has, nr = _land(method, media, cell, y0, k1, hk, glo, h_end, g_end,
-                                           hk + (h_end - hk) * (-glo) / (g_end - glo), EV_PLANE, grz, max_time,
-                                           eps_x, y1, knew, yerr, work)
-                ev_kind = EV_PLANE
-                ev_tag = grz_tag
-                for i in range(4):
-                    evp[i] = grz[i]
-            else:  # it curves out of the plane it grazes: slide (project, reflect the outward part)
-                ok, has = advance(method, media, cell, y0, k1, h_end, y1, knew, yerr, work)
-                nr = 1
-                slide_tag = grz_tag
-            restarts += nr
-            evals += nr * n_per
-            gg = _plane_g(grz, y1)
-            for i in range(3):
-                y1[i] -= gg * grz[i]
-            moved = True
+        ok, has2, h_end, ev_kind, ev_tag, slide_tag, moved, nr = _resolve_events(
+            method, media, bplanes, btags, cell, y0, k1, h, max_time, eps_x, eps_t, y1, knew, yerr, work,
+            evp, grz, ys)
+        restarts += nr
+        evals += nr * n_per
+        if nr > 0:
+            has = has2
         if not (ok and _finite(y1)):
             status = STATUS_LOST
             break
         # ---- accept: f(y1), path samples, cell, then the events ----
-        if not (has and not moved):
+        if moved or not has:
             if not rhs(media, cell, y1, knew):
                 status = STATUS_LOST
                 break
@@ -496,22 +364,21 @@ def trace_one(method, media, bplanes, btags, x_start, d_start, cell_start, max_t
             k1[i] = knew[i]
             y0[i] = y1[i]
         if media[0] == MEDIA_MESH:
-            cell_new, face, mv = walk(media[3], media[4], cell, y0, eps_x)
+            cell, face, mv = walk(media[3], media[4], cell, y0, eps_x)
+            crossings += mv
             if face == WALK_FAILED:
                 status = STATUS_LOST
                 break
-            crossings += mv
-            cell = cell_new
         if record and y0[6] - t_last >= dt_sample:
             count = _emit(path_pts, path_t, path_s, base, cap, count, y0)
             t_last = y0[6]
         refl_before = reflections
-        if ev_kind == EV_TIME or y0[6] >= max_time - eps_t:
+        if ev_kind == EVENT_TIME or y0[6] >= max_time - eps_t:
             y0[6] = max_time
             status = STATUS_TIME_LIMIT
-        elif ev_kind == EV_PLANE and ev_tag == BOUNDARY_OPEN:
+        elif ev_kind == EVENT_PLANE and ev_tag == BOUNDARY_OPEN:
             status = STATUS_EXITED
-        elif ev_kind == EV_PLANE:
+        elif ev_kind == EVENT_PLANE:
             status, reflections = _reflect(evp, y0, k1, reflections, max_reflections)
         if status == STATUS_RUNNING and slide_tag == BOUNDARY_OPEN:
             status = STATUS_EXITED

@@ -149,7 +149,7 @@ def trace_one(
     mode = fld[0]
     f_on = mode != field.FIELD_OFF
     gq = np.ones(f_weights.shape[0])
-    gq_state = np.full(1, -1.0)
+    gq_state = np.zeros(1)  # 0: only rigid reflections so far (see field.deposit_segment)
     last_vox = np.full(1, -1, dtype=np.int64)
     x = x_start.copy()
     d = d_start.copy()
@@ -276,7 +276,8 @@ def trace_one(
             if reflections < refl_cos.shape[0]:
                 refl_cos[reflections] = abs(dot)
                 refl_mat[reflections] = face_material[cell, face]
-            gq_state[0] = -1.0  # ground factors change with every reflection
+            if face_material[cell, face] > 0:
+                gq_state[0] = -1.0  # a soft reflection: re-evaluate the ground factors
             for i in range(3):
                 d[i] -= 2.0 * dot * planes[cell, face, i]
             norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])

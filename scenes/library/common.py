@@ -134,7 +134,8 @@ def surfaces_digest(surfaces: SceneSurfaces, sources: np.ndarray) -> str:
         h.update(np.asarray(t.triangles, dtype="<i8").tobytes())
     for fp in surfaces.footprints:
         h.update(_micrometres(fp.polygon))
-        h.update(_micrometres([fp.height_m, np.nan if fp.base_z is None else fp.base_z]))
+        h.update(_micrometres([fp.height_m]))
+        h.update(b"base:lowest" if fp.base_z is None else _micrometres([fp.base_z]))
         h.update(f"{fp.material}:{fp.name}".encode())
     for m in surfaces.materials:
         h.update(f"{m.name}:{m.flow_resistivity}".encode())
