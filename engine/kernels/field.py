@@ -31,28 +31,18 @@ from bentray.engine.kernels import curves
 
 # fgeo layout (float64): grid origin (3), 1/spacing (3), h_sample (arc metres per sub-interval)
 FGEO_SIZE = 7
-# Ground-factor refresh: |Q(s)|^2 depends on s through sqrt(k s); re-evaluated when s has changed
-# by more than this fraction since the last evaluation. Measured: a 2 % change of R2 moves |Q|^2 by
-# up to 0.047 at grazing incidence, so 0.5 % keeps it near 0.01 (0.05 dB); rays that met only rigid
-# faces never evaluate the table.
-Q_REFRESH_REL = 0.005
+# Ground factors: |Q(s)|^2 depends on s through sqrt(k s). They are evaluated at an anchor s_a and
+# at s_a (1 + Q_SPAN_REL) and interpolated linearly in ln s in between (the table itself is bilinear in
+# ln R2 with nodes 3.3 % apart, so this reproduces it closely); a sample outside the span moves the
+# anchor. Measured: a 2 % change of R2 moves |Q|^2 by up to 0.047 at grazing incidence, so holding
+# it constant over the span would not do. Rays that met only rigid faces never evaluate the table.
+Q_SPAN_REL = 0.02
+# Per-ray field state ``fst``: [0] pending time (s) and [1] pending arc (m) of short segments not yet
+# deposited, [2] ground-factor anchor s_a (0: only rigid reflections so far, -1: stale after a soft one).
+FST_SIZE = 3
 FIELD_OFF = 0
 FIELD_INCOHERENT = 1
 FIELD_COHERENT = 2
-
-
-@nb.njit(**NJIT_FLAGS)
-def ground_factors(q2tab, q2ax, band_of, refl_cos, refl_mat, n_refl, s, gq):
-    """gq[f] = product over recorded reflections of |Q_band_of[f]|^2 at path length s.
-
-    q2tab, q2ax : acoustics.ground.build_q2_table's table and grid (rigid materials hold exactly 1).
-    """
-    n_rec = min(n_refl, refl_cos.shape[0])
-    for f in range(gq.shape[0]):
-        g = 1.0
-        for j in range(n_rec):
-            g *= q2_lookup(q2tab, q2ax, refl_mat[j], band_of[f], refl_cos[j], s)
-        gq[f] = g
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -88,29 +78,108 @@ def _misses_grid(fgeo, fshape, xa, xb, reach):
 
 
 @nb.njit(**NJIT_FLAGS)
+def _ground_factor(f, s, q2tab, q2ax, band_of, refl_cos, refl_mat, n_refl, gq, fst):
+    """Product of |Q|^2 over the ray's reflections in accumulated band f at arc length s."""
+    if fst[2] == 0.0:
+        return 1.0
+    if f == 0 and (fst[2] < 0.0 or s < fst[2] or s > fst[2] * (1.0 + Q_SPAN_REL)):
+        span = math.log1p(Q_SPAN_REL)
+        for b in range(gq.shape[1]):
+            g_a = 1.0
+            g_b = 1.0
+            for j in range(min(n_refl, refl_cos.shape[0])):
+                g_a *= q2_lookup(q2tab, q2ax, refl_mat[j], band_of[b], refl_cos[j], s)
+                g_b *= q2_lookup(q2tab, q2ax, refl_mat[j], band_of[b], refl_cos[j], s * (1.0 + Q_SPAN_REL))
+            gq[0, b] = g_a
+            gq[1, b] = (g_b - g_a) / span
+        fst[2] = s
+    return gq[0, f] + gq[1, f] * math.log(s / fst[2])
+
+
+@nb.njit(**NJIT_FLAGS)
+def _deposit_point(v, x, tangent, t_pt, s_pt, dt, slowness, mode, fgeo, fshape, weights, alpha, band_of,
+                   q2tab, q2ax, refl_cos, refl_mat, n_refl, gq, fst, ray_id, acc,
+                   energy, c_energy, c_perp2, c_time, c_length, c_ray):
+    """Deposit time dt spent around point x (voxel v, arc length s_pt, travel time t_pt)."""
+    if mode == FIELD_INCOHERENT:
+        for f in range(energy.shape[1]):
+            g = _ground_factor(f, s_pt, q2tab, q2ax, band_of, refl_cos, refl_mat, n_refl, gq, fst)
+            energy[acc, f, v] += weights[f] * dt * math.exp(-alpha[f] * s_pt) * g
+        return
+    grp = min(n_refl, c_energy.shape[1] - 1)
+    c_energy[acc, grp, v] += weights[0] * dt
+    # nearest approach to the grid point: carry time and length along the local tangent
+    nz = fshape[2]
+    ny = fshape[1]
+    qx = fgeo[0] + (v // (nz * ny)) / fgeo[3] - x[0]
+    qy = fgeo[1] + ((v // nz) % ny) / fgeo[4] - x[1]
+    qz = fgeo[2] + (v % nz) / fgeo[5] - x[2]
+    along = qx * tangent[0] + qy * tangent[1] + qz * tangent[2]
+    perp2 = qx * qx + qy * qy + qz * qz - along * along
+    if perp2 < c_perp2[acc, grp, v]:
+        c_perp2[acc, grp, v] = perp2
+        c_time[acc, grp, v] = t_pt + along * slowness
+        c_length[acc, grp, v] = s_pt + along
+        c_ray[acc, grp, v] = ray_id
+
+
+@nb.njit(**NJIT_FLAGS)
+def flush_pending(x, tangent, t_end, s_end, slowness, mode, fgeo, fshape, weights, alpha, band_of, q2tab, q2ax,
+                  refl_cos, refl_mat, n_refl, gq, fst, last_vox, ray_id, acc,
+                  energy, hits, c_energy, c_perp2, c_time, c_length, c_ray):
+    """Deposit the pending time of short segments that ended at x (time t_end, arc s_end)."""
+    if fst[0] > 0.0:
+        v = _voxel(fgeo, fshape, x)
+        if v >= 0:
+            if v != last_vox[0]:
+                hits[acc, v] += 1.0
+                last_vox[0] = v
+            _deposit_point(v, x, tangent, t_end, s_end - 0.5 * fst[1], fst[0], slowness, mode, fgeo, fshape,
+                           weights, alpha, band_of, q2tab, q2ax, refl_cos, refl_mat, n_refl, gq, fst, ray_id, acc,
+                           energy, c_energy, c_perp2, c_time, c_length, c_ray)
+        else:
+            last_vox[0] = -1
+    fst[0] = 0.0
+    fst[1] = 0.0
+
+
+@nb.njit(**NJIT_FLAGS)
 def deposit_segment(
-    curve, cs, x0, d0, x1, param_end, t0, s0, seg_s, c_ref, m0, grad_m,
+    curve, cs, x0, d0, x1, param_end, t0, s0, seg_t, seg_s, c_ref, m0, grad_m,
     mode, fgeo, fshape, weights, alpha, band_of, q2tab, q2ax,
-    refl_cos, refl_mat, n_refl, gq, gq_state, last_vox, ray_id, acc,
+    refl_cos, refl_mat, n_refl, gq, fst, last_vox, ray_id, acc,
     energy, hits, c_energy, c_perp2, c_time, c_length, c_ray, xs, ts,
 ):
-    """Deposit one segment (param 0 .. param_end from x0 to x1, arc length seg_s) into the grid.
+    """Deposit one segment (param 0 .. param_end from x0 to x1: time seg_t, arc length seg_s).
+
+    Segments shorter than the sample length (thin layers, edge walks) are not evaluated: their time is
+    added to the pending time, deposited as one sample once a sample length has gathered or a longer
+    segment starts (at the point where the pending path ended). Longer segments are cut into
+    sub-intervals of at most h_sample, uniform in the curve parameter; each deposits its exact travel
+    time at its middle point.
 
     weights : (n_f,) ray power per accumulated band (W); alpha : (n_f,) energy absorption (1/m);
     band_of : (n_f,) physical band index of each accumulated band (for the ground table);
-    gq : (n_f,) current ground factors; gq_state : (1,) arc length they were evaluated at, 0 while the
-    ray has met only rigid faces (gq = 1, nothing to evaluate), -1 after a soft reflection (re-evaluate);
+    gq : (2, n_f) ground factors at the anchor and their slope in ln s; fst : (FST_SIZE,) per-ray state;
     last_vox : (1,) voxel of the ray's previous sample (for ray_hits: a ray counts once per entry).
     energy : (n_acc, n_f, n_vox); hits : (n_acc, n_vox); c_* : (n_acc, n_group, n_vox) coherent records.
     m0, grad_m : the cell's traced quantity at x0 and its gradient (for the local slowness).
     """
     if seg_s <= 0.0 or param_end <= 0.0:
         return
+    h = fgeo[6]
+    if fst[1] + seg_s < h:
+        fst[0] += seg_t
+        fst[1] += seg_s
+        return
+    slowness0 = curves.slowness(curve, m0, c_ref)
+    flush_pending(x0, d0, t0, s0, slowness0, mode, fgeo, fshape, weights, alpha, band_of, q2tab, q2ax,
+                  refl_cos, refl_mat, n_refl, gq, fst, last_vox, ray_id, acc,
+                  energy, hits, c_energy, c_perp2, c_time, c_length, c_ray)
     if _misses_grid(fgeo, fshape, x0, x1, 0.5 * seg_s):
         last_vox[0] = -1
         return
-    n_sub = int(seg_s / fgeo[6]) + 1
-    n_f = energy.shape[1]
+    n_sub = int(seg_s / h) + 1
     t_prev = 0.0
     for j in range(n_sub):
         p_b = param_end * (j + 1) / n_sub
@@ -128,33 +197,12 @@ def deposit_segment(
             last_vox[0] = v
         if not (dt > 0.0):
             continue
-        s_mid = s0 + ds_mid
-        if mode == FIELD_INCOHERENT:
-            if gq_state[0] != 0.0 and abs(s_mid - gq_state[0]) > Q_REFRESH_REL * gq_state[0]:
-                ground_factors(q2tab, q2ax, band_of, refl_cos, refl_mat, n_refl, s_mid, gq)
-                gq_state[0] = s_mid
-            for f in range(n_f):
-                energy[acc, f, v] += weights[f] * dt * math.exp(-alpha[f] * s_mid) * gq[f]
-        else:
-            g = min(n_refl, c_energy.shape[1] - 1)
-            c_energy[acc, g, v] += weights[0] * dt
-            # nearest approach to the grid point: carry time and length along the local tangent
-            nz = fshape[2]
-            ny = fshape[1]
-            k = v % nz
-            jj = (v // nz) % ny
-            ii = v // (nz * ny)
-            qx = fgeo[0] + ii / fgeo[3] - xs[0]
-            qy = fgeo[1] + jj / fgeo[4] - xs[1]
-            qz = fgeo[2] + k / fgeo[5] - xs[2]
-            along = qx * ts[0] + qy * ts[1] + qz * ts[2]
-            perp2 = qx * qx + qy * qy + qz * qz - along * along
-            if perp2 < c_perp2[acc, g, v]:
-                m = m0 + grad_m[0] * (xs[0] - x0[0]) + grad_m[1] * (xs[1] - x0[1]) + grad_m[2] * (xs[2] - x0[2])
-                slowness = curves.slowness(curve, m, c_ref)
-                t_mid = t0 + curves.time_at(curve, cs, p_mid, c_ref)
-                c_perp2[acc, g, v] = perp2
-                c_time[acc, g, v] = t_mid + along * slowness
-                c_length[acc, g, v] = s_mid + along
-                c_ray[acc, g, v] = ray_id
-
+        slowness = 0.0
+        t_mid = 0.0
+        if mode != FIELD_INCOHERENT:
+            m = m0 + grad_m[0] * (xs[0] - x0[0]) + grad_m[1] * (xs[1] - x0[1]) + grad_m[2] * (xs[2] - x0[2])
+            slowness = curves.slowness(curve, m, c_ref)
+            t_mid = t0 + curves.time_at(curve, cs, p_mid, c_ref)
+        _deposit_point(v, xs, ts, t_mid, s0 + ds_mid, dt, slowness, mode, fgeo, fshape, weights, alpha, band_of,
+                       q2tab, q2ax, refl_cos, refl_mat, n_refl, gq, fst, ray_id, acc,
+                       energy, c_energy, c_perp2, c_time, c_length, c_ray)

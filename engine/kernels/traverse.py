@@ -121,13 +121,22 @@ def _emit_segment(curve, cs, x0, d0, param_end, t0, s0, t_end, c_ref, t_last, dt
 
 
 @nb.njit(**NJIT_FLAGS)
-def _deposit(fld, curve, cs, x0, d0, x1, param_end, t0, s0, seg_s, c_ref, m0, grad_m, f_weights,
-             refl_cos, refl_mat, n_refl, gq, gq_state, last_vox, ray_id, acc, xs, ts):
+def _deposit(fld, curve, cs, x0, d0, x1, param_end, t0, s0, seg_t, seg_s, c_ref, m0, grad_m, f_weights,
+             refl_cos, refl_mat, n_refl, gq, fst, last_vox, ray_id, acc, xs, ts):
     field.deposit_segment(
-        curve, cs, x0, d0, x1, param_end, t0, s0, seg_s, c_ref, m0, grad_m,
+        curve, cs, x0, d0, x1, param_end, t0, s0, seg_t, seg_s, c_ref, m0, grad_m,
         fld[0], fld[1], fld[2], f_weights, fld[3], fld[4], fld[5], fld[6],
-        refl_cos, refl_mat, n_refl, gq, gq_state, last_vox, ray_id, acc,
+        refl_cos, refl_mat, n_refl, gq, fst, last_vox, ray_id, acc,
         fld[7], fld[8], fld[9], fld[10], fld[11], fld[12], fld[13], xs, ts,
+    )
+
+
+@nb.njit(**NJIT_FLAGS)
+def _flush(fld, x, d, t, s, slowness, f_weights, refl_cos, refl_mat, n_refl, gq, fst, last_vox, ray_id, acc):
+    field.flush_pending(
+        x, d, t, s, slowness, fld[0], fld[1], fld[2], f_weights, fld[3], fld[4], fld[5], fld[6],
+        refl_cos, refl_mat, n_refl, gq, fst, last_vox, ray_id, acc,
+        fld[7], fld[8], fld[9], fld[10], fld[11], fld[12], fld[13],
     )
 
 
@@ -148,8 +157,8 @@ def trace_one(
     """
     mode = fld[0]
     f_on = mode != field.FIELD_OFF
-    gq = np.ones(f_weights.shape[0])
-    gq_state = np.zeros(1)  # 0: only rigid reflections so far (see field.deposit_segment)
+    gq = np.zeros((2, f_weights.shape[0]))
+    fst = np.zeros(field.FST_SIZE)
     last_vox = np.full(1, -1, dtype=np.int64)
     x = x_start.copy()
     d = d_start.copy()
@@ -225,8 +234,8 @@ def trace_one(
             param_end = curves.param_at_time(curve, cs, max_time - t, param, c_ref)
             ds = curves.evaluate(curve, cs, x, d, param_end, xn, dn)
             if f_on:
-                _deposit(fld, curve, cs, x, d, xn, param_end, t, s, ds, c_ref, m0, gradient[cell], f_weights,
-                         refl_cos, refl_mat, reflections, gq, gq_state, last_vox, ray_id, acc, xs, ts)
+                _deposit(fld, curve, cs, x, d, xn, param_end, t, s, max_time - t, ds, c_ref, m0, gradient[cell],
+                         f_weights, refl_cos, refl_mat, reflections, gq, fst, last_vox, ray_id, acc, xs, ts)
             if record and max_time - t > dt_sample:
                 count, t_last = _emit_segment(curve, cs, x, d, param_end, t, s, max_time, c_ref, t_last,
                                               dt_sample, path_pts, path_t, path_s, path_base, path_cap,
@@ -240,8 +249,8 @@ def trace_one(
             break
         ds = curves.evaluate(curve, cs, x, d, param, xn, dn)
         if f_on:
-            _deposit(fld, curve, cs, x, d, xn, param, t, s, ds, c_ref, m0, gradient[cell], f_weights,
-                     refl_cos, refl_mat, reflections, gq, gq_state, last_vox, ray_id, acc, xs, ts)
+            _deposit(fld, curve, cs, x, d, xn, param, t, s, dt, ds, c_ref, m0, gradient[cell], f_weights,
+                     refl_cos, refl_mat, reflections, gq, fst, last_vox, ray_id, acc, xs, ts)
         if record:
             if dt > dt_sample:
                 count, t_last = _emit_segment(curve, cs, x, d, param, t, s, t + dt, c_ref, t_last,
@@ -273,11 +282,15 @@ def trace_one(
                 status = STATUS_REFLECTION_LIMIT
                 break
             dot = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
+            if f_on:  # time gathered before the reflection belongs to the incoming ray
+                _flush(fld, x, d, t, s, curves.slowness(curve, _media_at(media_ref, ref_point, gradient, cell, x),
+                                                        c_ref),
+                       f_weights, refl_cos, refl_mat, reflections, gq, fst, last_vox, ray_id, acc)
+                if face_material[cell, face] > 0:
+                    fst[2] = -1.0  # a soft reflection: re-evaluate the ground factors
             if reflections < refl_cos.shape[0]:
                 refl_cos[reflections] = abs(dot)
                 refl_mat[reflections] = face_material[cell, face]
-            if face_material[cell, face] > 0:
-                gq_state[0] = -1.0  # a soft reflection: re-evaluate the ground factors
             for i in range(3):
                 d[i] -= 2.0 * dot * planes[cell, face, i]
             norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
@@ -291,6 +304,9 @@ def trace_one(
         else:
             status = STATUS_EXITED
             break
+    if f_on and cell >= 0:
+        _flush(fld, x, d, t, s, curves.slowness(curve, _media_at(media_ref, ref_point, gradient, cell, x), c_ref),
+               f_weights, refl_cos, refl_mat, reflections, gq, fst, last_vox, ray_id, acc)
     if record and (count == 0 or t > t_last):
         count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
     for i in range(3):
