@@ -119,6 +119,9 @@ def run_job(job: Job, base_dir: Path | None = None) -> JobOutcome:
             "receiver_z": float(lo[2] + job.field.receiver_height_m),
             "title": f"{job.name}: {profile.kind} profile, {result.n_rays} rays",
         }
+        field_arrays.stats["fan_spacing"] = field_stage.fan_spacing_advice(
+            job.field, np.array([src.position for src in job.sources]), job.rays.elevation_deg.values(),
+            job.rays.azimuth_deg.values())
         timings["field_finalize"] = time.perf_counter() - t0
         stages["field"] = (f"ran: {job.field.mode}, {buffers.grid.n_points} points, "
                            f"{len(job.field.frequencies_hz)} bands")
