@@ -1,6 +1,7 @@
 """The ``bentray`` command line.
 
     bentray run JOB.json --out DIR [--threads N]
+    bentray bench --out DIR [--quick] [--only NAME ...]
 
 Exit status: 0 success; 2 invalid command line or job file (unreadable, invalid JSON or schema
 errors, printed one ``field.path: reason`` per line on stderr); 1 any other error during the run
@@ -116,8 +117,39 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_run)
 
 
+# ---------------------------------------------------------------------------------------------
+# bentray bench
+# ---------------------------------------------------------------------------------------------
+def cmd_bench(args: argparse.Namespace) -> int:
+    out_dir = Path(args.out)
+    if out_dir.exists() and not out_dir.is_dir():
+        raise CommandError(f"--out {out_dir} exists and is not a directory", code=2)
+
+    from bentray.engine.bench.runner import run_bench_sections
+
+    t0 = time.perf_counter()
+    outcome = run_bench_sections(out_dir, quick=args.quick, only=args.only,
+                                 progress=lambda line: print("  " + line, flush=True))
+    print(f"bench: wrote {outcome.report} in {time.perf_counter() - t0:.1f} s")
+    if outcome.failed:
+        raise CommandError(f"section(s) failed: {', '.join(outcome.failed)} (see {outcome.report})")
+    return 0
+
+
+def _add_bench(sub: argparse._SubParsersAction) -> None:
+    from bentray.engine.bench.runner import SECTIONS
+
+    p = sub.add_parser("bench", help="benchmark accuracy and speed; write report.md, CSVs and PNGs",
+                       description="Run the benchmark sections and write report.md, CSV tables and PNG plots.")
+    p.add_argument("--out", required=True, help="output directory (created; files in it are replaced)")
+    p.add_argument("--quick", action="store_true", help="smoke run: fewer rays, settings and repeats (~2 min)")
+    p.add_argument("--only", nargs="+", choices=list(SECTIONS), metavar="NAME",
+                   help=f"run only these sections: {', '.join(SECTIONS)}")
+    p.set_defaults(func=cmd_bench)
+
+
 # Each entry adds one subcommand parser (with set_defaults(func=handler)).
-COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_run]
+COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_run, _add_bench]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -111,19 +111,19 @@ def energy_absorption(spec: FieldSpec) -> np.ndarray:
 
 
 def prepare(spec: FieldSpec, *, ray_weights: np.ndarray, source_index: np.ndarray,
-            source_powers_w: np.ndarray | None, flow_resistivity: float | None, max_reflections: int,
+            source_powers_w: np.ndarray | None, materials: list[float | None], max_reflections: int,
             ground_sound_speed: float, n_slots: int | None = None) -> FieldBuffers:
     """Allocate the accumulators for a job.
 
     ray_weights : (n,) Omega/(4 pi) per ray; source_index : (n,) int; source_powers_w : (n_src, n_f) W
-    or None. ground_sound_speed (m/s) sets k in the ground table. With several powered sources a
+    or None. materials : flow resistivity (Pa s/m^2) per face material index, None = rigid (index 0).
+    ground_sound_speed (m/s) sets k in the ground table. With several powered sources a
     second set of bands accumulates the powered energy (SPL);
     the first set always holds unit-power energy (TL).
     """
     grid = FieldGrid(np.asarray(spec.origin, float), np.asarray(spec.spacing, float), tuple(spec.shape))
     n_f = len(spec.frequencies_hz)
     alpha = energy_absorption(spec)
-    materials = [None, flow_resistivity]
     q2 = build_q2_table(np.asarray(spec.frequencies_hz, float), materials, c=ground_sound_speed)
     q2tab, q2ax = q2.table, q2.grid
     n_slots = int(n_slots or numba.get_num_threads())
@@ -151,7 +151,7 @@ def _level(x: np.ndarray) -> np.ndarray:
 
 
 def finalize(spec: FieldSpec, buffers: FieldBuffers, sound_speed: np.ndarray, trace: TraceResult,
-             source_powers_w: np.ndarray | None, flow_resistivity: float | None) -> FieldArrays:
+             source_powers_w: np.ndarray | None, materials: list[float | None]) -> FieldArrays:
     """Turn accumulators into named point arrays (tl_*, spl_*, spl_a, p_re_*/p_im_*, ray_hits)."""
     grid = buffers.grid
     reduced = buffers.reduce()
@@ -174,7 +174,7 @@ def finalize(spec: FieldSpec, buffers: FieldBuffers, sound_speed: np.ndarray, tr
                 powered_i = unit_i * source_powers_w[0][:, None]
             spl = _level(powered_i / P_REF_INTENSITY)
     else:
-        p = coherent_pressure(spec, reduced, sound_speed, trace, flow_resistivity)
+        p = coherent_pressure(spec, reduced, sound_speed, trace, materials)
         spl = None
         for f, lab in enumerate(labels):
             arrays[f"tl_{lab}hz"] = -_level(np.abs(p[f]) ** 2)
@@ -220,7 +220,7 @@ def finalize(spec: FieldSpec, buffers: FieldBuffers, sound_speed: np.ndarray, tr
 
 
 def coherent_pressure(spec: FieldSpec, reduced: FieldReduced, sound_speed: np.ndarray, trace: TraceResult,
-                      flow_resistivity: float | None) -> np.ndarray:
+                      materials: list[float | None]) -> np.ndarray:
     """(n_f, n_vox) complex pressure relative to the 1 m free-field amplitude (see module docstring).
 
     sound_speed : (n_vox,) m/s at the grid points (intensity I = E c / V; wavenumber of Q's ground wave).
@@ -244,16 +244,16 @@ def coherent_pressure(spec: FieldSpec, reduced: FieldReduced, sound_speed: np.nd
         c_vox = sound_speed[vox]
         for f, freq in enumerate(freqs):
             term = amp * np.exp(-0.5 * alpha[f] * s) * np.exp(1j * 2.0 * np.pi * freq * t)
-            if g > 0 and flow_resistivity is not None and trace.reflection_cos is not None:
-                z = delany_bazley_impedance(freq, flow_resistivity)
+            if g > 0 and trace.reflection_cos is not None and trace.reflection_material is not None:
                 k = 2.0 * np.pi * freq / c_vox  # wavenumber at the receiver for the ground-wave term
-                n_rec = min(g, trace.reflection_cos.shape[1])
-                for j in range(n_rec):
+                for j in range(min(g, trace.reflection_cos.shape[1])):
                     cos_j = trace.reflection_cos[rays, j]
-                    soft = trace.reflection_material[rays, j] > 0
-                    q = np.ones(len(vox), dtype=complex)
-                    if np.any(soft):
-                        q[soft] = spherical_wave_coefficient(z, cos_j[soft], k[soft], s[soft])
-                    term = term * q
+                    mat_j = trace.reflection_material[rays, j]
+                    for mat, sigma in enumerate(materials):
+                        hit = mat_j == mat
+                        if sigma is None or not np.any(hit):
+                            continue
+                        z = delany_bazley_impedance(freq, sigma)
+                        term[hit] = term[hit] * spherical_wave_coefficient(z, cos_j[hit], k[hit], s[hit])
             p[f, vox] += term
     return p

@@ -17,11 +17,14 @@ import numpy as np
 import bentray
 from bentray.engine import field as field_stage
 from bentray.engine.errors import JobInputError
-from bentray.engine.media import build_media
+from bentray.engine.media import build_media, build_terrain_media
 from bentray.engine.mesh.cells import CellMesh
 from bentray.engine.result import JobOutcome, TraceResult
+from bentray.engine.surfaces import SceneSurfaces
 from bentray.engine.tracer import trace
+from bentray.scenes.library.registry import get_builtin
 from bentray.scenes.profile_models import profile_from_spec
+from bentray.scenes.scene_models import check_points_above_ground, surfaces_from_specs
 from bentray.scenes.schema import Job
 
 
@@ -51,6 +54,23 @@ def launch_fan(job: Job) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray
     )
 
 
+def load_surfaces(job: Job, base_dir: Path | None = None) -> SceneSurfaces | None:
+    """The scene's terrain, buildings and materials (None: flat ground only, no constrained meshing)."""
+    scene = job.scene
+    if scene.builtin is not None:
+        if not scene.has_surfaces:
+            return None
+        return get_builtin(scene.builtin, scene.resolution).surfaces
+    if scene.terrain is None and scene.buildings is None:
+        return None
+    return surfaces_from_specs(scene.terrain, scene.buildings, scene.materials, base_dir, scene.box, prefix="scene")
+
+
+def _describe_surfaces(surfaces: SceneSurfaces) -> str:
+    terrain = type(surfaces.terrain).__name__ if surfaces.terrain is not None else "flat ground"
+    return f"{terrain}, {len(surfaces.footprints)} buildings, {len(surfaces.materials)} materials"
+
+
 def _wants_paths(job: Job) -> bool:
     if job.rays.record_paths is not None:
         return bool(job.rays.record_paths)
@@ -67,17 +87,29 @@ def run_job(job: Job, base_dir: Path | None = None) -> JobOutcome:
     timings["profile"] = time.perf_counter() - t0
     stages["profile"] = f"ran: {profile.kind}"
 
-    domain = job.scene.domain
+    domain = job.scene.box
     lo = np.asarray(domain.min, float)
     hi = np.asarray(domain.max, float)
     t0 = time.perf_counter()
-    media = build_media(profile, job.solver.curve, job.solver, lo, hi, ground="reflect", top=job.scene.top.kind)
+    surfaces = load_surfaces(job, base_dir)
+    timings["scene"] = time.perf_counter() - t0
+    stages["scene"] = (f"ran: {_describe_surfaces(surfaces)}" if surfaces is not None
+                       else "skipped: flat ground, no terrain or buildings (no constrained meshing)")
+    t0 = time.perf_counter()
+    if surfaces is not None:
+        media = build_terrain_media(profile, job.solver.curve, job.solver, lo, hi, surfaces, top=job.scene.top.kind)
+    else:
+        media = build_media(profile, job.solver.curve, job.solver, lo, hi, ground="reflect",
+                            top=job.scene.top.kind)
     timings["mesh"] = time.perf_counter() - t0
     stages["mesh"] = f"ran: {media.representation} ({media.reason})"
 
     origins, dirs, src_idx, el, az = launch_fan(job)
     t0 = time.perf_counter()
     src_pos = np.array([s.position for s in job.sources], float)
+    if surfaces is not None:
+        check_points_above_ground(surfaces, src_pos, [f"sources.{i}.position" for i in range(len(src_pos))],
+                                  flat_ground_z=float(lo[2]) if surfaces.terrain is None else None)
     src_cells = media.locate(src_pos)
     bad = np.nonzero(src_cells < 0)[0]
     if bad.size:
@@ -92,7 +124,8 @@ def run_job(job: Job, base_dir: Path | None = None) -> JobOutcome:
     powers = None
     if job.field is not None:
         t0 = time.perf_counter()
-        mesh, buffers, powers = _prepare_field(job, profile, mesh, len(origins), src_idx)
+        materials = _materials(job, surfaces)
+        mesh, buffers, powers = _prepare_field(job, profile, mesh, src_idx, materials)
         timings["field_setup"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     result: TraceResult = trace(
@@ -113,7 +146,7 @@ def run_job(job: Job, base_dir: Path | None = None) -> JobOutcome:
         t0 = time.perf_counter()
         grid_points = buffers.grid.points()
         field_arrays = field_stage.finalize(job.field, buffers, profile.sound_speed(grid_points), result, powers,
-                                            job.scene.ground.flow_resistivity)
+                                            materials)
         field_arrays.preview = {
             "source_xyz": list(job.sources[0].position),
             "receiver_z": float(lo[2] + job.field.receiver_height_m),
@@ -144,23 +177,29 @@ def run_job(job: Job, base_dir: Path | None = None) -> JobOutcome:
     return JobOutcome(trace=result, mesh_geometry=geometry, report=report, field=field_arrays)
 
 
-def _prepare_field(job: Job, profile, mesh: CellMesh, n_rays: int, src_idx: np.ndarray):
+def _materials(job: Job, surfaces: SceneSurfaces | None) -> list[float | None]:
+    """Flow resistivity per face material index (None = rigid): the scene's table, or flat ground's."""
+    if surfaces is not None:
+        return [m.flow_resistivity for m in surfaces.materials]
+    return [None, job.scene.ground.flow_resistivity]
+
+
+def _prepare_field(job: Job, profile, mesh: CellMesh, src_idx: np.ndarray, materials: list[float | None]):
     """Ground material on the mesh, per-ray launch weights, source powers (W) and the accumulators."""
     spec = job.field
     assert spec is not None
-    sigma = job.scene.ground.flow_resistivity
-    if sigma is not None:
-        mesh = field_stage.tag_ground_material(mesh, float(job.scene.domain.min[2]), field_stage.GROUND_MATERIAL)
+    if job.scene.ground.flow_resistivity is not None and not job.scene.has_surfaces:
+        mesh = field_stage.tag_ground_material(mesh, float(job.scene.box.min[2]), field_stage.GROUND_MATERIAL)
     per_source = field_stage.launch_solid_angles(job.rays.elevation_deg.values(), job.rays.azimuth_deg.values())
     weights = np.tile(per_source, len(job.sources))
-    lo = job.scene.domain.min
+    lo = job.scene.box.min
     ground_point = np.array([[job.sources[0].position[0], job.sources[0].position[1], lo[2]]])
     powers = None
     if job.sources[0].power_db is not None:
         powers = np.array([[field_stage.W_REF * 10.0 ** (src.power_db[b] / 10.0) for b in spec.labels]
                            for src in job.sources])
     buffers = field_stage.prepare(spec, ray_weights=weights, source_index=src_idx, source_powers_w=powers,
-                                  flow_resistivity=sigma, max_reflections=job.rays.max_reflections,
+                                  materials=materials, max_reflections=job.rays.max_reflections,
                                   ground_sound_speed=float(profile.sound_speed(ground_point)[0]))
     return mesh, buffers, powers
 

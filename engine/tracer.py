@@ -10,6 +10,7 @@ from bentray.engine.field_buffers import REFLECTION_RECORD_CAP, FieldBuffers, no
 from bentray.engine.kernels.traverse import trace_rays
 from bentray.engine.mesh.cells import CellMesh
 from bentray.engine.result import RayPaths, TraceResult
+from bentray.engine.wind import check_wind
 
 
 def path_capacity(path_samples: int, max_reflections: int) -> int:
@@ -30,6 +31,7 @@ def trace(
     max_steps: int = 10_000_000,
     path_samples: int = 0,
     field: FieldBuffers | None = None,
+    wind: tuple[int, np.ndarray] | None = None,
 ) -> TraceResult:
     """Trace rays through ``mesh`` with the given curve kind.
 
@@ -38,10 +40,14 @@ def trace(
     path_samples : samples per ray for rays.vtp (0: no path recording, no path buffers).
     field : accumulators to fill along the curves (None: no accumulation, no field arrays); when
         given, the result also carries each ray's first reflections (incidence cosine, face material).
+    wind : (code, params) of engine.wind.wind_spec, or None (no wind: code 0 and an empty array go to the
+        kernel). With wind each ray traces the effective medium c + u(x) . e, e its unit horizontal launch
+        azimuth (physics.md section 7); ``mesh`` carries c alone (no per-cell wind arrays).
     Returns a TraceResult with launch angles left at NaN (the caller fills them in).
     """
     if curve not in CURVE_CODES:
         raise ValueError(f"unknown curve {curve!r}; expected one of {sorted(CURVE_CODES)}")
+    wind_code, wind_params = check_wind(wind)
     origins = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3)
     directions = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
     start_cells = np.ascontiguousarray(start_cells, dtype=np.int64).reshape(-1)
@@ -72,9 +78,10 @@ def trace(
     refl_mat = np.zeros((n, refl_cap), dtype=np.int64)
     trace_rays(
         mesh.planes, mesh.neighbours, mesh.neighbour_face, mesh.media_ref, mesh.ref_point,
-        mesh.gradient, mesh.size, mesh.face_material, CURVE_CODES[curve], float(c_ref), origins, directions,
-        start_cells, float(max_time_s), int(max_reflections), int(max_steps), record, float(dt_sample), cap,
-        path_pts, path_t, path_s, fld, f_weights, n_slots, refl_cos, refl_mat, out_state, out_counts,
+        mesh.gradient, mesh.size, mesh.face_material, CURVE_CODES[curve], float(c_ref), wind_code, wind_params,
+        origins, directions, start_cells, float(max_time_s), int(max_reflections), int(max_steps), record,
+        float(dt_sample), cap, path_pts, path_t, path_s, fld, f_weights, n_slots, refl_cos, refl_mat, out_state,
+        out_counts,
     )
     paths = None
     if record:

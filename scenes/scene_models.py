@@ -53,6 +53,7 @@ __all__ = [
     "surfaces_from_specs",
     "surface_problems",
     "footprint_base_z",
+    "footprint_bases",
     "check_points_above_ground",
 ]
 
@@ -202,35 +203,50 @@ def material_reference_errors(
     return errors
 
 
-def footprint_base_z(terrain: HeightGrid | TriangleSurface | None, footprint: Footprint, flat_z: float) -> float:
-    """The footprint's ground level in metres: ``base_z`` if set, else an estimate of the lowest terrain
-    height under the polygon (its vertices, points every half terrain spacing along its edges and the
-    terrain nodes inside it; ``flat_z`` without terrain). NaN where the terrain does not cover it."""
-    if footprint.base_z is not None:
-        return float(footprint.base_z)
-    if terrain is None:
-        return float(flat_z)
-    poly = footprint.polygon
+def footprint_bases(
+    terrain: HeightGrid | TriangleSurface | None, footprints: Sequence[Footprint], flat_z: float
+) -> np.ndarray:
+    """Ground level (F,) in metres of each footprint: ``base_z`` if set, else an estimate of the lowest
+    terrain height under the polygon (its vertices, points every half terrain spacing along its edges and
+    the terrain nodes inside it; ``flat_z`` without terrain). NaN where the terrain does not cover it."""
+    out = np.array([flat_z if fp.base_z is None else fp.base_z for fp in footprints], dtype=np.float64)
+    todo = [k for k, fp in enumerate(footprints) if fp.base_z is None]
+    if terrain is None or not todo:
+        return out
+    lo = np.array([footprints[k].polygon.min(axis=0) for k in todo])
+    hi = np.array([footprints[k].polygon.max(axis=0) for k in todo])
+    inside_z: list[np.ndarray] = []
     if isinstance(terrain, HeightGrid):
         step = 0.5 * min(float(np.min(np.diff(terrain.x))), float(np.min(np.diff(terrain.y))))
-        gx, gy = np.meshgrid(terrain.x, terrain.y)
-        nodes = np.column_stack([gx.ravel(), gy.ravel()])
-        node_z = terrain.z.ravel()
+        for n, k in enumerate(todo):  # the grid window under each footprint's bounding box
+            j0, j1 = int(np.searchsorted(terrain.x, lo[n, 0])), int(np.searchsorted(terrain.x, hi[n, 0], "right"))
+            i0, i1 = int(np.searchsorted(terrain.y, lo[n, 1])), int(np.searchsorted(terrain.y, hi[n, 1], "right"))
+            gx, gy = np.meshgrid(terrain.x[j0:j1], terrain.y[i0:i1])
+            nodes = np.column_stack([gx.ravel(), gy.ravel()])
+            inside_z.append(terrain.z[i0:i1, j0:j1].ravel()[points_in_polygon(nodes, footprints[k].polygon)])
     else:
         e = terrain.vertices[terrain.triangles][:, :, :2]
         step = 0.5 * float(np.median(np.linalg.norm(np.roll(e, -1, axis=1) - e, axis=2)))
-        nodes, node_z = terrain.vertices[:, :2], terrain.vertices[:, 2]
-    lo, hi = poly.min(axis=0), poly.max(axis=0)
-    near = np.all((nodes >= lo) & (nodes <= hi), axis=1)
-    inside_z = node_z[near][points_in_polygon(nodes[near], poly)]
-    a, b = poly, np.roll(poly, -1, axis=0)
-    samples = [a]
-    for k in range(poly.shape[0]):
-        n = max(int(np.ceil(np.linalg.norm(b[k] - a[k]) / step)), 1)
-        t = np.arange(1, n)[:, None] / n
-        samples.append(a[k] + t * (b[k] - a[k]))
-    edge_z = terrain_height_at(terrain, np.concatenate(samples))
-    return float(min(np.min(edge_z), np.min(inside_z, initial=np.inf)))
+        xy = terrain.vertices[:, :2]
+        iv, ifp = box_pairs(xy, xy, lo, hi)
+        for n, k in enumerate(todo):
+            v = iv[ifp == n]
+            inside_z.append(terrain.vertices[v[points_in_polygon(xy[v], footprints[k].polygon)], 2])
+    for n, k in enumerate(todo):
+        poly = footprints[k].polygon
+        a, b = poly, np.roll(poly, -1, axis=0)
+        samples = [a]
+        for m in range(poly.shape[0]):
+            count = max(int(np.ceil(np.linalg.norm(b[m] - a[m]) / step)), 1)
+            samples.append(a[m] + (np.arange(1, count)[:, None] / count) * (b[m] - a[m]))
+        edge_z = terrain_height_at(terrain, np.concatenate(samples))
+        out[k] = min(float(np.min(edge_z)), float(np.min(inside_z[n], initial=np.inf)))
+    return out
+
+
+def footprint_base_z(terrain: HeightGrid | TriangleSurface | None, footprint: Footprint, flat_z: float) -> float:
+    """One footprint's ground level in metres (see :func:`footprint_bases`)."""
+    return float(footprint_bases(terrain, [footprint], flat_z)[0])
 
 
 def _resolve(base_dir: str | Path | None, file: str) -> Path:
@@ -371,7 +387,8 @@ def _footprint_problems(
     dmax: np.ndarray,
 ) -> list[str]:
     problems = []
-    for label, fp in labelled:
+    bases = footprint_bases(terrain, [fp for _, fp in labelled], dmin[2])
+    for (label, fp), base in zip(labelled, bases, strict=True):
         outside = ~np.all((fp.polygon > dmin[:2]) & (fp.polygon < dmax[:2]), axis=1)
         if np.any(outside):
             problems.append(
@@ -379,7 +396,6 @@ def _footprint_problems(
                 f"x {dmin[0]:g}..{dmax[0]:g}, y {dmin[1]:g}..{dmax[1]:g} m"
             )
             continue
-        base = footprint_base_z(terrain, fp, dmin[2])
         if fp.base_z is not None and fp.base_z < dmin[2]:
             problems.append(f"{label}: base_z = {fp.base_z:g} m is below the domain bottom (min z = {dmin[2]:g} m)")
         if base + fp.height_m >= dmax[2]:
@@ -429,7 +445,7 @@ def check_points_above_ground(
     flat_ground_z : ground height when the scene has no terrain (domain min z); None skips that test
     (footprints without base_z then stand on z = 0).
     Ground: bilinear on a height grid, linear on terrain triangles. Buildings: the point's xy in the
-    closed footprint and z at or below the roof (the base as in :func:`footprint_base_z`).
+    closed footprint and z at or below the roof (the base as in :func:`footprint_bases`).
     Obstacles: winding number above 1/2.
     """
     p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
@@ -448,14 +464,15 @@ def check_points_above_ground(
             where = "on the ground" if depth == 0 else f"{depth:.3g} m below the ground"
             bad[k] = f"is {where} (ground at z = {ground[k]:g} m)"
     flat_z = 0.0 if flat_ground_z is None else float(flat_ground_z)
-    for fp in surfaces.footprints:
+    bases = footprint_bases(surfaces.terrain, surfaces.footprints, flat_z)
+    for fp, base in zip(surfaces.footprints, bases, strict=True):
         lo, hi = fp.polygon.min(axis=0), fp.polygon.max(axis=0)
         near = np.flatnonzero(np.all((p[:, :2] >= lo) & (p[:, :2] <= hi), axis=1))
         if near.size == 0:
             continue
         tol = 1e-9 * max(float(np.abs(fp.polygon).max()), 1.0)
         inside = points_in_polygon(p[near, :2], fp.polygon, margin=-tol)
-        roof = footprint_base_z(surfaces.terrain, fp, flat_z) + fp.height_m
+        roof = base + fp.height_m
         for k in near[inside & (p[near, 2] <= roof)]:
             bad.setdefault(int(k), f"is inside building {fp.name!r} (roof at z = {roof:g} m)")
     for i, (vertices, faces) in enumerate(surfaces.obstacles):

@@ -11,6 +11,7 @@ CLI's exit-2 message and of the service's HTTP 422 body).
 
 from __future__ import annotations
 
+import functools
 import json
 from pathlib import Path
 from typing import Any, Literal
@@ -29,7 +30,9 @@ from pydantic_core import PydanticCustomError
 
 from bentray.engine.errors import BentrayError
 from bentray.scenes.field_models import MAX_COHERENT_FIELD_POINTS, FieldSpec
+from bentray.scenes.library.registry import BUILTIN_SCENES as _REGISTRY
 from bentray.scenes.profile_models import ProfileSpec
+from bentray.scenes.scene_models import BuildingsSpec, MaterialSpec, TerrainSpec, material_reference_errors
 
 __all__ = [
     "BUILTIN_SCENES",
@@ -57,7 +60,7 @@ MAX_TOTAL_RAYS = 10_000_000  # sources x elevations x azimuths; keeps one job's 
 MAX_SOURCES = 10_000
 MAX_TIME_S = 3600.0
 MAX_REFLECTIONS = 100_000
-BUILTIN_SCENES: tuple[str, ...] = ("flat",)  # more built-in scenes come later
+BUILTIN_SCENES: tuple[str, ...] = tuple(_REGISTRY)
 _NAME_RE = r"^[A-Za-z0-9._-]{1,100}$"
 
 
@@ -143,10 +146,22 @@ class Top(_Model):
 
 
 class Scene(_Model):
-    domain: Domain
+    """The solid world: a domain box, flat ground or terrain, buildings/barriers, ground materials.
+
+    ``builtin`` names a generated scene (``bentray scenes`` lists them) that brings its own domain,
+    terrain, buildings and materials; ``domain`` may then be omitted (or given to crop it). Otherwise
+    ``domain`` is required and ``terrain`` / ``buildings`` / ``materials`` are optional.
+    ``ground.flow_resistivity`` is the material of flat ground; terrain uses ``terrain.material``.
+    """
+
+    domain: Domain | None = None
     ground: Ground = Field(default_factory=Ground)
     top: Top = Field(default_factory=Top)
     builtin: str | None = None
+    resolution: Literal["medium", "high"] = "medium"
+    terrain: TerrainSpec | None = None
+    buildings: BuildingsSpec | None = None
+    materials: list[MaterialSpec] = Field(default_factory=list, max_length=256)
 
     @field_validator("builtin")
     @classmethod
@@ -154,6 +169,51 @@ class Scene(_Model):
         if value is not None and value not in BUILTIN_SCENES:
             raise ValueError(f"unknown builtin scene {value!r}; known scenes: {', '.join(BUILTIN_SCENES)}")
         return value
+
+    @model_validator(mode="after")
+    def _check_scene(self) -> Scene:
+        errors: list[tuple[tuple[str | int, ...], str, Any]] = []
+        if self.builtin is None and self.domain is None:
+            errors.append((("domain",), "a domain is required unless the scene is builtin", None))
+        if self.builtin is not None:
+            for key in ("terrain", "buildings"):
+                if getattr(self, key) is not None:
+                    errors.append(((key,), f"builtin scene {self.builtin!r} brings its own {key}; "
+                                   "remove one of them", None))
+        if self.terrain is not None and self.ground.flow_resistivity is not None:
+            errors.append((("ground", "flow_resistivity"), "with terrain, give the ground material as "
+                           "scene.terrain.material (defined in scene.materials)", self.ground.flow_resistivity))
+        errors.extend((loc, reason, None) for loc, reason in
+                      material_reference_errors(self.terrain, self.buildings, self.materials))
+        if errors:
+            _fail(errors, "Scene")
+        return self
+
+    @property
+    def box(self) -> Domain:
+        """The effective domain: ``domain`` if given, else the builtin scene's."""
+        if self.domain is not None:
+            return self.domain
+        assert self.builtin is not None
+        scene = _builtin(self.builtin, self.resolution)
+        return Domain(min=scene.domain_min, max=scene.domain_max)
+
+    @property
+    def has_surfaces(self) -> bool:
+        """True when the scene has terrain, buildings or a builtin with surfaces (a conforming mesh)."""
+        if self.terrain is not None or self.buildings is not None:
+            return True
+        if self.builtin is not None:
+            surf = _builtin(self.builtin, self.resolution).surfaces
+            return surf.terrain is not None or bool(surf.footprints) or bool(surf.obstacles)
+        return False
+
+
+@functools.lru_cache(maxsize=16)
+def _builtin(name: str, resolution: str):
+    from bentray.scenes.library.registry import get_builtin
+
+    return get_builtin(name, resolution)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -331,7 +391,7 @@ class Job(_Model):
     @model_validator(mode="after")
     def _check_job(self) -> Job:
         errors = []
-        domain = self.scene.domain
+        domain = self.scene.box
         for i, source in enumerate(self.sources):
             p = source.position
             if not p[2] > domain.min[2]:
@@ -379,7 +439,7 @@ class Job(_Model):
             return errors
         if "field" not in self.outputs:
             errors.append((("outputs",), "a field grid is given but 'field' is not in outputs", self.outputs))
-        domain = self.scene.domain
+        domain = self.scene.box
         lo, hi = np.asarray(spec.origin, float), spec.upper_corner
         for axis, name in enumerate(_AXES):
             if lo[axis] < domain.min[axis] or hi[axis] > domain.max[axis]:

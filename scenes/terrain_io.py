@@ -24,7 +24,7 @@ from __future__ import annotations
 import json
 import re
 import warnings
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -68,9 +68,10 @@ MAX_FILE_BYTES = 512 * 2**20
 # 25M heights (a 5,000 x 5,000 grid) are 200 MB of float64; the mesh builder thins the grid to the media
 # spacing anyway, so larger grids only cost memory and reading time.
 MAX_TERRAIN_SAMPLES = 25_000_000
-# Mesh checks keep ~1 kB of numpy temporaries per triangle: 1M triangles stay near 1 GB and a few seconds.
-# (The paper's largest scene has 16,000 surface triangles.)
-MAX_MESH_TRIANGLES = 1_000_000
+# The mesh checks (numpy, ~1 kB of temporaries per triangle) took 11 s for a 318k-triangle terrain and
+# 6 s for a 328k-triangle closed mesh on the 2-core dev machine; 500k keeps a job's input check under
+# about 20 s and 0.5 GB. The paper's largest scene has 16,000 surface triangles.
+MAX_MESH_TRIANGLES = 500_000
 # Footprint overlap checks are pairwise on candidate pairs; 10,000 buildings is a small town.
 MAX_FOOTPRINTS = 10_000
 MAX_POLYGON_VERTICES = 10_000
@@ -113,7 +114,7 @@ def _check_samples(path: Path, ny: int, nx: int) -> None:
         )
 
 
-def _check_heights(path: Path, z: np.ndarray, where) -> None:
+def _check_heights(path: Path, z: np.ndarray, where: Callable[[int, int], str]) -> None:
     """NaN or infinite heights -> error naming the count and the first location (``where(i, j)``)."""
     bad = ~np.isfinite(z)
     if np.any(bad):
@@ -277,6 +278,17 @@ def read_height_npy(path: str | Path, origin, spacing) -> HeightGrid:
     return _grid_from_origin(path, _height_array(path, z, "the array"), origin, spacing)
 
 
+def _npz_member_shape(archive: Any, key: str) -> tuple[int, ...]:
+    """Shape of one array of an open .npz, read from its .npy header without inflating the data."""
+    with archive.zip.open(f"{key}.npy") as member:
+        version = np.lib.format.read_magic(member)
+        if version == (1, 0):
+            shape, _, _ = np.lib.format.read_array_header_1_0(member)
+        else:
+            shape, _, _ = np.lib.format.read_array_header_2_0(member)
+    return tuple(int(n) for n in shape)
+
+
 def read_height_npz(path: str | Path) -> HeightGrid:
     """``.npz`` with ``z`` (ny, nx) and either ``origin``/``spacing`` (2,) or ``x`` (nx,) / ``y`` (ny,)."""
     path = Path(path)
@@ -291,8 +303,14 @@ def read_height_npz(path: str | Path) -> HeightGrid:
         if keys not in allowed:
             raise _fail(path, f"expected keys z, origin, spacing or x, y, z; found {', '.join(sorted(keys)) or 'none'}")
         try:
+            for key in keys:  # sizes from the headers first: a compressed archive can inflate enormously
+                shape = _npz_member_shape(archive, key)
+                if int(np.prod(shape)) > MAX_TERRAIN_SAMPLES:
+                    raise _fail(path, f"{key} has shape {shape}: more than {MAX_TERRAIN_SAMPLES:,} values")
             arrays = {k: archive[k] for k in keys}
-        except ValueError as exc:
+        except (ValueError, OSError, KeyError) as exc:
+            if isinstance(exc, SceneFileError):
+                raise
             raise _fail(path, f"cannot read arrays ({exc})") from None
     z = _height_array(path, arrays["z"], "z")
     if "origin" in keys:

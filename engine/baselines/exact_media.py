@@ -126,23 +126,23 @@ def exact_media_spec(profile: Profile, smooth_below_ground: bool = True) -> tupl
     return code, np.ascontiguousarray(vals, dtype=np.float64)
 
 
-@nb.njit(**NJIT_FLAGS)
-def _from_c(c_ref, c, gcx, gcy, gcz, out_grad):
-    """n = c_ref / c and grad n = -c_ref / c^2 grad c."""
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _from_c(c_ref, c, gcx, gcy, gcz, out, k):
+    """n = c_ref / c and grad n = -c_ref / c^2 grad c into out[k:k+3]."""
     f = -c_ref / (c * c)
-    out_grad[0] = f * gcx
-    out_grad[1] = f * gcy
-    out_grad[2] = f * gcz
+    out[k] = f * gcx
+    out[k + 1] = f * gcy
+    out[k + 2] = f * gcz
     return c_ref / c
 
 
-@nb.njit(**NJIT_FLAGS)
-def _from_n2(m, gmz, out_grad):
-    """n = sqrt(n^2) and grad n = grad(n^2) / (2 n), gradient along z only."""
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _from_n2(m, gmz, out, k):
+    """n = sqrt(n^2) and grad n = grad(n^2) / (2 n) into out[k:k+3], gradient along z only."""
     n = math.sqrt(m)
-    out_grad[0] = 0.0
-    out_grad[1] = 0.0
-    out_grad[2] = gmz / (2.0 * n)
+    out[k] = 0.0
+    out[k + 1] = 0.0
+    out[k + 2] = gmz / (2.0 * n)
     return n
 
 
@@ -153,39 +153,45 @@ def n_and_grad(code, params, x, out_grad):
     ``code, params`` from :func:`exact_media_spec`. Unphysical media (c <= 0, n^2 < 0) give n <= 0 or
     NaN, which the caller turns into the ``lost`` status. An unknown code returns NaN.
     """
+    return n_and_grad_at(code, params, x, out_grad, 0)
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def n_and_grad_at(code, params, x, out, k):
+    """:func:`n_and_grad` writing grad n into ``out[k:k+3]`` (no array view: the integrators' hot path)."""
     cr = params[0]
     z = x[2]
     if code == EXACT_HOMOGENEOUS:
-        out_grad[0] = 0.0
-        out_grad[1] = 0.0
-        out_grad[2] = 0.0
+        out[k] = 0.0
+        out[k + 1] = 0.0
+        out[k + 2] = 0.0
         return cr / params[1]
     if code == EXACT_LINEAR_C:
-        return _from_c(cr, params[1] + params[2] * z, 0.0, 0.0, params[2], out_grad)
+        return _from_c(cr, params[1] + params[2] * z, 0.0, 0.0, params[2], out, k)
     if code == EXACT_LINEAR_N:
-        out_grad[0] = 0.0
-        out_grad[1] = 0.0
-        out_grad[2] = params[2]
+        out[k] = 0.0
+        out[k + 1] = 0.0
+        out[k + 2] = params[2]
         return params[1] + params[2] * z
     if code == EXACT_LINEAR_N2:
-        return _from_n2(params[1] * params[1] + params[2] * z, params[2], out_grad)
+        return _from_n2(params[1] * params[1] + params[2] * z, params[2], out, k)
     if code == EXACT_LOG:
         c0 = params[1]
         b = params[2]
         z_g = params[3]
         if z >= 0.0 or (params[4] != 0.0 and z > -0.5 * z_g):
-            return _from_c(cr, c0 + b * math.log1p(z / z_g), 0.0, 0.0, b / (z + z_g), out_grad)
+            return _from_c(cr, c0 + b * math.log1p(z / z_g), 0.0, 0.0, b / (z + z_g), out, k)
         if params[4] != 0.0:  # C1 linear continuation below z = -z_g / 2
-            return _from_c(cr, c0 - b * LN2 + (2.0 * b / z_g) * (z + 0.5 * z_g), 0.0, 0.0, 2.0 * b / z_g, out_grad)
-        return _from_c(cr, c0, 0.0, 0.0, 0.0, out_grad)
+            return _from_c(cr, c0 - b * LN2 + (2.0 * b / z_g) * (z + 0.5 * z_g), 0.0, 0.0, 2.0 * b / z_g, out, k)
+        return _from_c(cr, c0, 0.0, 0.0, 0.0, out, k)
     if code == EXACT_MIRAGE_INFERIOR or code == EXACT_MIRAGE_SUPERIOR:
         mu0 = params[1]
         mu1 = params[2]
         beta = params[3]
         e = math.exp(-beta * z)
         if code == EXACT_MIRAGE_INFERIOR:
-            return _from_n2(mu0 * mu0 + mu1 * mu1 * -math.expm1(-beta * z), mu1 * mu1 * beta * e, out_grad)
-        return _from_n2(mu0 * mu0 + mu1 * mu1 * e, -mu1 * mu1 * beta * e, out_grad)
+            return _from_n2(mu0 * mu0 + mu1 * mu1 * -math.expm1(-beta * z), mu1 * mu1 * beta * e, out, k)
+        return _from_n2(mu0 * mu0 + mu1 * mu1 * e, -mu1 * mu1 * beta * e, out, k)
     if code == EXACT_HOT_SPOT:
         rx = x[0] - params[1]
         ry = x[1] - params[2]
@@ -200,9 +206,9 @@ def n_and_grad(code, params, x, out_grad):
         t = T_SEA_LEVEL_K + LAPSE_RATE_K_PER_M * zc + d_t * e
         lapse = LAPSE_RATE_K_PER_M if ((smooth or z >= 0.0) and z <= TROPOPAUSE_M) else 0.0
         c = math.sqrt(GAMMA_AIR * R_AIR * t)
-        k = GAMMA_AIR * R_AIR / (2.0 * c)
-        return _from_c(cr, c, k * coef * rx, k * coef * ry, k * (coef * rz + lapse), out_grad)
-    out_grad[0] = math.nan
-    out_grad[1] = math.nan
-    out_grad[2] = math.nan
+        q = GAMMA_AIR * R_AIR / (2.0 * c)  # grad c = q grad T
+        return _from_c(cr, c, q * coef * rx, q * coef * ry, q * (coef * rz + lapse), out, k)
+    out[k] = math.nan
+    out[k + 1] = math.nan
+    out[k + 2] = math.nan
     return math.nan

@@ -34,13 +34,18 @@ import math
 import numba as nb
 import numpy as np
 
-from bentray.engine.baselines.exact_media import n_and_grad
-from bentray.engine.baselines.mesh_media import QUANTITY_CODES, mesh_n_and_grad
+from bentray.engine.baselines.exact_media import n_and_grad_at
+from bentray.engine.baselines.mesh_media import QUANTITY_CODES, mesh_n_and_grad_at
 from bentray.engine.constants import NJIT_FLAGS
 from bentray.engine.mesh.cells import CellMesh
 
 __all__ = [
     "NY",
+    "WORK_ROWS",
+    "STAGES",
+    "EVALS_PER_STEP",
+    "EVENT_PLANE",
+    "EVENT_TIME",
     "MEDIA_EXACT",
     "MEDIA_MESH",
     "METHOD_EULER",
@@ -78,10 +83,16 @@ METHOD_DOPRI5 = 3  # Dormand-Prince 5(4), adaptive, local extrapolation, FSAL
 METHOD_CODES = {"euler": METHOD_EULER, "euler_adaptive": METHOD_EULER_ADAPTIVE, "rk4": METHOD_RK4,
                 "dopri5": METHOD_DOPRI5}
 
-# All four methods are explicit Runge-Kutta tableaux stepped by one loop (rk_step), so the right-hand
-# side has a single call site: hand-unrolled steppers inlined the media code ~50 times into the
-# tracer and doubled its Numba compile time. Rows: METHOD_*; STAGES[m] stages; A[m] (7, 7) stage
-# coefficients, B[m] (7,) weights, E[m] (7,) error weights (b - b_hat; zero for the fixed-step methods).
+# All four methods are explicit Runge-Kutta tableaux stepped by one loop (rk_step), so the media code
+# has one call site in the steppers instead of one per stage and method. Rows: METHOD_*; STAGES[m]
+# stages; A[m] (7, 7) stage coefficients, B[m] (7,) weights, E[m] (7,) error weights (b - b_hat; zero
+# for the fixed-step methods).
+#
+# Inlining (Numba IR, inline="always"): every call that passes arrays pays atomic reference-count
+# updates per array, which dominated the step cost. The media evaluation and rhs are inlined (an A-LD
+# right-hand side went from 260 to 105 ns), and so are advance and controlled_step, which have one hot
+# call site (an Euler step of the tracer: 480 -> 350 ns CPU; +2 s of compilation). rk_step is not:
+# inlining it into its four call sites gained another 30 % but doubled the cold compile (24 -> 52 s CPU).
 MAX_STAGES = 7
 STAGES = np.array([1, 2, 4, 7], dtype=np.int64)
 # New right-hand-side evaluations per step (k1 = f(y0) is given; DOPRI5's 7th stage is f(y1), FSAL).
@@ -171,26 +182,32 @@ def make_media(
 @nb.njit(**NJIT_FLAGS)
 def media_n(media, cell, x, out_grad):
     """n at ``x`` (3,) m and grad n into ``out_grad`` (3,) 1/m, dispatched on ``media[0]``."""
+    return media_n_at(media, cell, x, out_grad, 0)
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def media_n_at(media, cell, x, out, k):
+    """:func:`media_n` writing grad n into ``out[k:k+3]``."""
     if media[0] == MEDIA_EXACT:
-        return n_and_grad(media[1], media[2], x, out_grad)
-    n, _ = mesh_n_and_grad(media[3], media[4], media[5], media[6], media[7], media[8], media[9], cell, x, out_grad)
+        return n_and_grad_at(media[1], media[2], x, out, k)
+    n, _ = mesh_n_and_grad_at(media[3], media[4], media[5], media[6], media[7], media[8], media[9], cell, x, out, k)
     return n
 
 
-@nb.njit(**NJIT_FLAGS)
+@nb.njit(inline="always", **NJIT_FLAGS)
 def rhs(media, cell, y, out):
     """out (NY,) = dy/dsigma at state y (NY,). False when n <= 0 or anything is non-finite."""
-    g = np.empty(3)
-    n = media_n(media, cell, y, g)
+    n = media_n_at(media, cell, y, out, 3)  # grad n lands in out[3:6]
+    ok = n > 0.0 and math.isfinite(n) and math.isfinite(out[3] + out[4] + out[5])
     out[0] = y[3]
     out[1] = y[4]
     out[2] = y[5]
-    out[3] = n * g[0]
-    out[4] = n * g[1]
-    out[5] = n * g[2]
+    out[3] *= n
+    out[4] *= n
+    out[5] *= n
     out[6] = n * n / media[9]
     out[7] = n
-    return n > 0.0 and math.isfinite(n) and math.isfinite(g[0] + g[1] + g[2])
+    return ok
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -252,7 +269,7 @@ def dopri5_step(media, cell, y0, k1, h, y1, k7, yerr, work):
     return ok
 
 
-@nb.njit(**NJIT_FLAGS)
+@nb.njit(inline="always", **NJIT_FLAGS)
 def advance(method, media, cell, y0, k1, h, y1, knew, yerr, work):
     """The accepted-step map of ``method``: one step from y0 with step h (sigma units) into y1.
 
@@ -284,7 +301,7 @@ def error_norm(yerr, tol):
     return e / tol
 
 
-@nb.njit(**NJIT_FLAGS)
+@nb.njit(inline="always", **NJIT_FLAGS)
 def controlled_step(method, media, cell, y0, k1, h, step_m, tol, y1, knew, yerr, work):
     """The accepted step from y0 into y1: fixed (h = step_m / n(y0), about step_m metres of arc) for
     Euler and RK4, error-controlled from the trial step h for step doubling and DOPRI5.

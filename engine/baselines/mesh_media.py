@@ -24,7 +24,7 @@ import numba as nb
 
 from bentray.engine.constants import CURVE_CIRCULAR, CURVE_NLINEAR, CURVE_PARABOLIC, FACE_UNUSED, NJIT_FLAGS
 
-__all__ = ["QUANTITY_CODES", "WALK_FAILED", "WALK_INSIDE", "walk", "mesh_n_and_grad"]
+__all__ = ["QUANTITY_CODES", "WALK_FAILED", "WALK_INSIDE", "walk", "mesh_n_and_grad", "mesh_n_and_grad_at"]
 
 QUANTITY_N2 = CURVE_PARABOLIC
 QUANTITY_C = CURVE_CIRCULAR
@@ -77,16 +77,23 @@ def mesh_n_and_grad(planes, neighbours, media_ref, ref_point, gradient, quantity
     ``out_grad`` (3,) and returns ``(n, cell_found)``; n is NaN when the walk failed, and <= 0 or NaN
     for unphysical media (the tracer's ``lost`` status).
     """
+    return mesh_n_and_grad_at(planes, neighbours, media_ref, ref_point, gradient, quantity, c_ref, cell, x,
+                              out_grad, 0)
+
+
+@nb.njit(**NJIT_FLAGS)
+def mesh_n_and_grad_at(planes, neighbours, media_ref, ref_point, gradient, quantity, c_ref, cell, x, out, k):
+    """:func:`mesh_n_and_grad` writing grad n into ``out[k:k+3]`` (no array view in the hot path)."""
     if cell < 0:
-        out_grad[0] = math.nan
-        out_grad[1] = math.nan
-        out_grad[2] = math.nan
+        out[k] = math.nan
+        out[k + 1] = math.nan
+        out[k + 2] = math.nan
         return math.nan, cell
     cell, face, _ = walk(planes, neighbours, cell, x, 0.0)
     if face == WALK_FAILED:
-        out_grad[0] = math.nan
-        out_grad[1] = math.nan
-        out_grad[2] = math.nan
+        out[k] = math.nan
+        out[k + 1] = math.nan
+        out[k + 2] = math.nan
         return math.nan, cell
     gx = gradient[cell, 0]
     gy = gradient[cell, 1]
@@ -106,7 +113,7 @@ def mesh_n_and_grad(planes, neighbours, media_ref, ref_point, gradient, quantity
     else:
         n = m
         f = 1.0
-    out_grad[0] = f * gx
-    out_grad[1] = f * gy
-    out_grad[2] = f * gz
+    out[k] = f * gx
+    out[k + 1] = f * gy
+    out[k + 2] = f * gz
     return n, cell

@@ -269,6 +269,12 @@ def _resolve_events(method, media, bplanes, btags, cell, y0, k1, h, max_time, ep
             ok, has = advance(method, media, cell, y0, k1, h_end, y1, knew, yerr, work)
             nr = 1
             slide_tag = grz_tag
+            if ev_kind == EVENT_TIME:  # re-apply the landing's snap to the re-taken step
+                y1[6] = max_time
+            elif ev_kind == EVENT_PLANE:
+                gg = plane_g(evp, y1)
+                for i in range(3):
+                    y1[i] -= gg * evp[i]
         restarts += nr
         gg = plane_g(grz, y1)
         for i in range(3):
@@ -286,6 +292,13 @@ def trace_one(method, media, bplanes, btags, x_start, d_start, cell_start, max_t
     out_counts (8,): status, reflections, cell crossings, accepted steps, restarts, rejected steps,
     right-hand-side evaluations, path samples.
     """
+    # Small shared inputs are copied per ray: every call that passes an array touches its reference
+    # count (an atomic add), and two threads hitting the same shared counters serialise each other.
+    bplanes = bplanes.copy()
+    btags = btags.copy()
+    if media[0] != MEDIA_MESH:  # exact media: the parameters and the 1-element mesh placeholders
+        media = (media[0], media[1], media[2].copy(), media[3].copy(), media[4].copy(), media[5].copy(),
+                 media[6].copy(), media[7].copy(), media[8], media[9])
     y0 = np.zeros(NY)
     y1 = np.zeros(NY)
     k1 = np.zeros(NY)
@@ -341,13 +354,24 @@ def trace_one(method, media, bplanes, btags, x_start, d_start, cell_start, max_t
             break
         steps += 1
         eps_x = LAND_REL * (1.0 + max(abs(y1[0]), abs(y1[1]), abs(y1[2])))
-        ok, has2, h_end, ev_kind, ev_tag, slide_tag, moved, nr = _resolve_events(
-            method, media, bplanes, btags, cell, y0, k1, h, max_time, eps_x, eps_t, y1, knew, yerr, work,
-            evp, grz, ys)
-        restarts += nr
-        evals += nr * n_per
-        if nr > 0:
-            has = has2
+        # fast path: nothing crossed (the common step) -> no event machinery (mesh faces need the walk)
+        crossed = media[0] == MEDIA_MESH or y1[6] - max_time > eps_t
+        for j in range(bplanes.shape[0]):
+            g1 = bplanes[j, 0] * y1[0] + bplanes[j, 1] * y1[1] + bplanes[j, 2] * y1[2] - bplanes[j, 3]
+            crossed = crossed or g1 > eps_x
+        ev_kind = EVENT_NONE
+        ev_tag = 0
+        slide_tag = 0
+        moved = False
+        h_end = h
+        if crossed:
+            ok, has2, h_end, ev_kind, ev_tag, slide_tag, moved, nr = _resolve_events(
+                method, media, bplanes, btags, cell, y0, k1, h, max_time, eps_x, eps_t, y1, knew, yerr, work,
+                evp, grz, ys)
+            restarts += nr
+            evals += nr * n_per
+            if nr > 0:
+                has = has2
         if not (ok and _finite(y1)):
             status = STATUS_LOST
             break

@@ -33,7 +33,7 @@ from collections.abc import Callable
 import numba as nb
 import numpy as np
 
-from bentray.engine.constants import PARALLEL_FLAGS
+from bentray.engine.constants import NJIT_FLAGS, PARALLEL_FLAGS
 from bentray.engine.errors import MeshBuildError
 
 # Fine sample count for integrating 1 / dz(zeta) when turning a vertical spacing rule into levels
@@ -156,9 +156,9 @@ def prism_tets(tris_sorted: np.ndarray, ccw: np.ndarray, n2: int, prism_tri: np.
     return t.reshape(-1, 4)
 
 
-@nb.njit(**PARALLEL_FLAGS)
+@nb.njit(**NJIT_FLAGS)
 def _sorted_faces(tets, faces):  # pragma: no cover - compiled
-    for t in nb.prange(tets.shape[0]):
+    for t in range(tets.shape[0]):
         for f in range(4):
             k = 0
             for j in range(4):
@@ -255,10 +255,10 @@ def _planes_quality(points, tets, faces, planes, area, vol, longest, dihedral): 
         dihedral[t] = dmin
 
 
-@nb.njit(**PARALLEL_FLAGS)
+@nb.njit(**NJIT_FLAGS)
 def _count_unpaired_planes(planes, neighbours, neighbour_face):  # pragma: no cover - compiled
     bad = 0
-    for t in nb.prange(planes.shape[0]):
+    for t in range(planes.shape[0]):
         for f in range(4):
             o = neighbours[t, f]
             if o >= 0:
@@ -294,11 +294,20 @@ def face_planes(points: np.ndarray, tets: np.ndarray, faces: np.ndarray, neighbo
     summary = {
         "volume_min_m3": float(vol.min()),
         "volume_total_m3": float(vol.sum()),
-        "min_dihedral_deg": {"min": float(dihedral.min()), "p1": float(np.percentile(dihedral, 1)),
-                             "median": float(np.median(dihedral))},  # fmt: skip
-        "aspect": {"median": float(np.median(aspect)), "p99": float(np.percentile(aspect, 99)),
-                   "max": float(aspect.max())},  # fmt: skip
-        "longest_edge_m": {"min": float(longest.min()), "median": float(np.median(longest)),
-                           "max": float(longest.max())},  # fmt: skip
+        "min_dihedral_deg": {
+            "min": float(dihedral.min()),
+            "p1": float(np.percentile(dihedral, 1)),
+            "median": float(np.median(dihedral)),
+        },  # fmt: skip
+        "aspect": {
+            "median": float(np.median(aspect)),
+            "p99": float(np.percentile(aspect, 99)),
+            "max": float(aspect.max()),
+        },  # fmt: skip
+        "longest_edge_m": {
+            "min": float(longest.min()),
+            "median": float(np.median(longest)),
+            "max": float(longest.max()),
+        },  # fmt: skip
     }
     return planes, {"volume": vol, "longest_edge": longest, "summary": summary}

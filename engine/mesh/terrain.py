@@ -82,8 +82,8 @@ LOCATE_TOL_REL = 1e-9
 class _Terrain(NamedTuple):
     height: Callable[[np.ndarray], np.ndarray]  # xy (N, 2) -> z (N,)
     material: Callable[[np.ndarray], np.ndarray]  # xy (N, 2) -> material index (N,)
-    samples: np.ndarray  # (M, 2) input sample positions inside the box (grid nodes, TIN vertices)
-    grid: HeightGrid | None
+    samples: np.ndarray  # (M, 2) input samples inside the box, thinned to the spacing (grid nodes, TIN vertices)
+    samples_in: Callable[[np.ndarray], np.ndarray]  # polygon (k, 2) -> every input sample (M, 2) inside it
 
 
 def _bilinear(grid: HeightGrid, xy: np.ndarray) -> np.ndarray:
@@ -98,10 +98,13 @@ def _bilinear(grid: HeightGrid, xy: np.ndarray) -> np.ndarray:
 
 def _terrain(surface: HeightGrid | TriangleSurface | None, lo: np.ndarray, hi: np.ndarray,
              spacing_fn: Callable) -> _Terrain:  # fmt: skip
-    inside = lambda p: np.all((p > lo[:2]) & (p < hi[:2]), axis=1)  # noqa: E731
+    def inside_polygon(p: np.ndarray, poly: np.ndarray) -> np.ndarray:
+        p = p[np.all((p >= poly.min(axis=0)) & (p <= poly.max(axis=0)), axis=1)]
+        return p[points_in_polygon(p, poly)]
+
     if surface is None:
         return _Terrain(lambda xy: np.full(len(xy), lo[2]), lambda xy: np.zeros(len(xy), dtype=np.int64),
-                        np.empty((0, 2)), None)  # fmt: skip
+                        np.empty((0, 2)), lambda poly: np.empty((0, 2)))  # fmt: skip
     if isinstance(surface, HeightGrid):
         x, y, z = (np.asarray(a, dtype=np.float64) for a in (surface.x, surface.y, surface.z))
         if x.ndim != 1 or y.ndim != 1 or len(x) < 2 or len(y) < 2 or z.shape != (len(y), len(x)):
@@ -111,6 +114,13 @@ def _terrain(surface: HeightGrid | TriangleSurface | None, lo: np.ndarray, hi: n
         if x[0] > lo[0] or x[-1] < hi[0] or y[0] > lo[1] or y[-1] < hi[1]:
             raise ValueError("the HeightGrid must cover the domain's xy box")
         grid = HeightGrid(x, y, z, surface.material, surface.default_material)
+
+        def nodes_in(poly: np.ndarray) -> np.ndarray:
+            bx = x[(x >= poly[:, 0].min()) & (x <= poly[:, 0].max())]
+            by = y[(y >= poly[:, 1].min()) & (y <= poly[:, 1].max())]
+            gx, gy = np.meshgrid(bx, by)
+            return inside_polygon(np.column_stack([gx.ravel(), gy.ravel()]), poly)
+
         mat = None if surface.material is None else np.asarray(surface.material, dtype=np.int64)
         if mat is not None and mat.shape != (len(y) - 1, len(x) - 1):
             raise ValueError("HeightGrid.material must have shape (ny - 1, nx - 1)")
@@ -124,7 +134,7 @@ def _terrain(surface: HeightGrid | TriangleSurface | None, lo: np.ndarray, hi: n
 
         xs, ys = x[(x > lo[0]) & (x < hi[0])], y[(y > lo[1]) & (y < hi[1])]
         nodes = stride_thin_grid(xs, ys, spacing_fn) if len(xs) > 1 and len(ys) > 1 else np.empty((0, 2))
-        return _Terrain(lambda xy: _bilinear(grid, xy), material, nodes, grid)
+        return _Terrain(lambda xy: _bilinear(grid, xy), material, nodes, nodes_in)
     if isinstance(surface, TriangleSurface):
         v = np.asarray(surface.vertices, dtype=np.float64)
         tri = np.asarray(surface.triangles, dtype=np.int64)
@@ -144,9 +154,9 @@ def _terrain(surface: HeightGrid | TriangleSurface | None, lo: np.ndarray, hi: n
             t, _ = loc.locate(xy)
             return tmat[np.maximum(t, 0)]
 
-        cand = v[inside(v[:, :2]), :2]
+        cand = v[np.all((v[:, :2] > lo[:2]) & (v[:, :2] < hi[:2]), axis=1), :2]
         cand = cand[greedy_thin(cand, spacing_fn(cand))] if len(cand) else cand
-        return _Terrain(height, material, cand, None)
+        return _Terrain(height, material, cand, lambda poly: inside_polygon(v[:, :2], poly))
     raise ValueError(f"unsupported terrain type {type(surface).__name__}")
 
 
@@ -295,16 +305,8 @@ def build_terrain_mesh(
     for f, (fp, poly) in enumerate(zip(surfaces.footprints, polys, strict=True)):
         g_f = ground[vertex_fp == f]
         if fp.base_z is None:
-            s_in = terrain.samples[points_in_polygon(terrain.samples, poly)] if len(terrain.samples) else None
-            if terrain.grid is not None:
-                g = terrain.grid
-                bx = g.x[(g.x >= poly[:, 0].min()) & (g.x <= poly[:, 0].max())]
-                by = g.y[(g.y >= poly[:, 1].min()) & (g.y <= poly[:, 1].max())]
-                gx, gy = np.meshgrid(bx, by)
-                nodes = np.column_stack([gx.ravel(), gy.ravel()])
-                s_in = nodes[points_in_polygon(nodes, poly)]
-            extra = terrain.height(s_in) if s_in is not None and len(s_in) else np.empty(0)
-            base_z[f] = float(np.concatenate([g_f, extra]).min())
+            s_in = terrain.samples_in(poly)
+            base_z[f] = float(np.concatenate([g_f, terrain.height(s_in) if len(s_in) else []]).min())
         else:
             base_z[f] = float(fp.base_z)
         roof_z[f] = base_z[f] + float(fp.height_m)
@@ -375,12 +377,12 @@ def build_terrain_mesh(
         raise ValueError("quantity_at must return one finite value per point")
     centroids = points[tets].mean(axis=1)
     media_ref = vertex_values[tets].mean(axis=1)
-    gg = green_gauss_gradients(points, tets, vertex_values)
     if gradient_method == "green_gauss":
-        grad, n_fallback = gg, 0
+        grad, n_fallback = green_gauss_gradients(points, tets, vertex_values), 0
     else:
-        grad, fallback = lsq_gradients(centroids, media_ref, neighbours, weighted=gradient_method == "lsq",
-                                       fallback=gg)  # fmt: skip
+        # as tets.py, but the Green-Gauss fallback is computed only for the cells that need it
+        grad, fallback = lsq_gradients(centroids, media_ref, neighbours, weighted=gradient_method == "lsq")
+        grad[fallback] = green_gauss_gradients(points, tets[fallback], vertex_values)
         n_fallback = int(fallback.sum())
     t3 = time.perf_counter()
 
@@ -407,8 +409,10 @@ def build_terrain_mesh(
         "n_degenerate": 0,
         "sigma_levels": s.tolist(),
         "triangulation": {**tri_report, "n_terrain_samples": int(len(tsamp)), "n_lattice": int(len(lattice))},
-        "roofs": [{"name": fp.name, "base_z": float(base_z[f]), "roof_z": float(roof_z[f]), "level": int(roof_k[f])}
-                  for f, fp in enumerate(surfaces.footprints)],  # fmt: skip
+        "roofs": [
+            {"name": fp.name, "base_z": float(base_z[f]), "roof_z": float(roof_z[f]), "level": int(roof_k[f])}
+            for f, fp in enumerate(surfaces.footprints)
+        ],  # fmt: skip
         **qual["summary"],
         "n_boundary_faces": {
             "ground": int(is_ground.sum()),
@@ -421,8 +425,12 @@ def build_terrain_mesh(
         },
         "gradient_method": gradient_method,
         "n_lsq_fallback": n_fallback,
-        "build_time_s": {"triangulation_2d": t1 - t0, "tables": t2 - t1, "gradients": t3 - t2,
-                         "total": time.perf_counter() - t0},  # fmt: skip
+        "build_time_s": {
+            "triangulation_2d": t1 - t0,
+            "tables": t2 - t1,
+            "gradients": t3 - t2,
+            "total": time.perf_counter() - t0,
+        },  # fmt: skip
     }
     return TetMesh(cells=cells, points=points, tets=tets, stats=stats, vertex_values=vertex_values)
 
@@ -448,15 +456,20 @@ def terrain_index(tet_mesh: TetMesh) -> TerrainIndex:
     """Rebuild the column structure of a ``build_terrain_mesh`` result from its tets (vectorised)."""
     n2 = int(tet_mesh.stats["n_vertices_2d"])
     n_layers = int(tet_mesh.stats["n_layers"])
-    tets = tet_mesh.tets
-    srt = np.sort(tets % n2, axis=1)  # each tet has exactly one vertical edge: one repeated 2D id
+    first = tet_mesh.tets[::3]  # the 3 tets of a prism are consecutive cells: one per prism suffices
+    srt = np.sort(first % n2, axis=1)  # each tet has exactly one vertical edge: one repeated 2D id
     mid = np.where(srt[:, 1] != srt[:, 0], srt[:, 1], srt[:, 2])
-    tri3 = np.column_stack([srt[:, 0], mid, srt[:, 3]])
-    triangles, tri_id = np.unique(tri3, axis=0, return_inverse=True)
-    layer = tets.min(axis=1) // n2
-    cells = np.arange(len(tets))
+    if float(n2) ** 3 < 2.0**62:
+        key = (srt[:, 0] * n2 + mid) * n2 + srt[:, 3]
+        ukey, tri_id = np.unique(key, return_inverse=True)
+        triangles = np.column_stack([ukey // (n2 * n2), (ukey // n2) % n2, ukey % n2])
+    else:
+        triangles, tri_id = np.unique(np.column_stack([srt[:, 0], mid, srt[:, 3]]), axis=0, return_inverse=True)
+    layer = first.min(axis=1) // n2
     prism_cells = np.full((len(triangles), n_layers, 3), -1, dtype=np.int64)
-    prism_cells[tri_id.reshape(-1), layer, cells % 3] = cells
+    base = 3 * np.arange(len(first))
+    for k in range(3):
+        prism_cells[tri_id.reshape(-1), layer, k] = base + k
     xy = tet_mesh.points[:n2, :2]
     levels = tet_mesh.points[:, 2].reshape(n_layers + 1, n2)
     return TerrainIndex(TriangleLocator(xy, triangles), triangles, levels, prism_cells)

@@ -34,7 +34,7 @@ import numpy as np
 from scipy.spatial import Delaunay, cKDTree
 
 from bentray.engine.errors import MeshBuildError
-from bentray.engine.mesh.fcc import HEX_DENSITY, estimate_point_count, grow_lattice, hex_directions, separated_from
+from bentray.engine.mesh.fcc import HEX_DENSITY, estimate_point_count, grow_lattice, hex_directions
 
 # Free points closer than SEGMENT_SEPARATION * min(d_i, d_j) to a footprint constraint point are dropped
 # (the rule tets.BOUNDARY_SEPARATION applies to box-face samples): closer ones would make needle triangles
@@ -52,6 +52,9 @@ MAX_RECOVERY_ROUNDS = 64
 DEGENERATE_AREA_REL = 1e-12
 # Barycentric slack for 2D point location (relative): ~1e3 ulps of coordinates at km scale.
 BARY_TOL = 1e-10
+# Height-grid nodes are thinned by power-of-two strides whose node spacing may exceed d by up to this factor:
+# a grid step just under d / 2 (e.g. 20.2 m for d = 40 m) would otherwise keep every node (4x the points).
+STRIDE_SLACK = 1.05
 # Relative slack of the greedy thinning rule (as fcc.SEPARATION_RTOL).
 SEPARATION_RTOL = 1e-6
 
@@ -143,9 +146,10 @@ def footprint_samples(polygons: list[np.ndarray], spacing_fn: Callable) -> tuple
 def stride_thin_grid(x: np.ndarray, y: np.ndarray, spacing_fn: Callable) -> np.ndarray:
     """Height-grid nodes (N, 2) thinned to the spacing by power-of-two index strides.
 
-    A node (i, j) is kept when i and j are multiples of s = 2^floor(log2(d / grid step)) (s >= 1): strides
-    nest, so a graded spacing gives a quadtree-like subgrid whose kept nodes are exact grid nodes (where the
-    grid is coarser than d every node is kept and the lattice densifies between them).
+    A node (i, j) is kept when i and j are multiples of s, the largest power of two with
+    s * (grid step) <= STRIDE_SLACK * d (s >= 1): strides nest, so a graded spacing gives a quadtree-like
+    subgrid whose kept nodes are exact grid nodes (where the grid is coarser than d every node is kept and
+    the lattice densifies between them).
     """
     gx, gy = np.meshgrid(x, y)
     xy = np.column_stack([gx.ravel(), gy.ravel()])
@@ -154,8 +158,8 @@ def stride_thin_grid(x: np.ndarray, y: np.ndarray, spacing_fn: Callable) -> np.n
     dx = np.diff(x)
     dy = np.diff(y)
     step = np.maximum(dx[np.minimum(ii, len(dx) - 1)], dy[np.minimum(jj, len(dy) - 1)])
-    ratio = spacing_fn(xy) / step
-    s = np.where(ratio >= 2.0, 2 ** np.floor(np.log2(np.maximum(ratio, 1.0))), 1).astype(np.int64)
+    ratio = STRIDE_SLACK * spacing_fn(xy) / step
+    s = (2 ** np.floor(np.log2(np.maximum(ratio, 1.0)))).astype(np.int64)
     keep = (ii % s == 0) & (jj % s == 0)
     return xy[keep]
 
@@ -243,7 +247,11 @@ def conforming_delaunay(
     segs = np.asarray(segments, dtype=np.int64).reshape(-1, 2)
     owner = np.asarray(seg_owner, dtype=np.int64)
     n0 = len(pts)
-    for rounds in range(1, MAX_RECOVERY_ROUNDS + 1):
+    rounds = 0
+    while True:
+        rounds += 1
+        if rounds > MAX_RECOVERY_ROUNDS:
+            raise MeshBuildError(f"footprint edges not recovered after {MAX_RECOVERY_ROUNDS} splitting rounds")
         tri = Delaunay(pts)
         if len(tri.coplanar):
             raise MeshBuildError(f"qhull left {len(tri.coplanar)} 2D points out of the triangulation")
@@ -260,8 +268,6 @@ def conforming_delaunay(
         second = np.column_stack([new_ids, segs[missing, 1]])
         segs = np.concatenate([segs[~missing], first, second])
         owner = np.concatenate([owner[~missing], owner[missing], owner[missing]])
-    else:
-        raise MeshBuildError(f"footprint edges not recovered after {MAX_RECOVERY_ROUNDS} splitting rounds")
     req = np.sort(np.asarray(required, dtype=np.int64).reshape(-1, 2), axis=1)
     if len(req) and not np.all(np.isin(req[:, 0] * len(pts) + req[:, 1], edges)):
         raise MeshBuildError("box side segments are missing from the 2D triangulation")
@@ -301,7 +307,9 @@ def points_in_polygon(p: np.ndarray, poly: np.ndarray) -> np.ndarray:
 
 
 def _orient(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
-    return np.sign((b[..., 0] - a[..., 0]) * (c[..., 1] - a[..., 1]) - (b[..., 1] - a[..., 1]) * (c[..., 0] - a[..., 0]))
+    return np.sign(
+        (b[..., 0] - a[..., 0]) * (c[..., 1] - a[..., 1]) - (b[..., 1] - a[..., 1]) * (c[..., 0] - a[..., 0])
+    )
 
 
 def segments_intersect(a0: np.ndarray, a1: np.ndarray, b0: np.ndarray, b1: np.ndarray) -> np.ndarray:

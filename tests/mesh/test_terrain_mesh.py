@@ -80,8 +80,13 @@ def tin_mesh():
         Footprint(np.array([[200.0, 50], [300, 50], [300, 50.5], [200, 50.5]]), 6, name="barrier 0.5 m"),
         Footprint(np.array([[200.0, 100], [260, 100], [260, 140], [200, 140]]), 15, name="b1"),
         Footprint(np.array([[260.5, 121.3], [300, 105], [300, 135]]), 10, name="wedge 0.5 m from b1"),
-        Footprint(np.array([[100.0, 200], [200, 200], [200, 260], [180, 260], [180, 210], [120, 210], [120, 260],
-                            [100, 260]]), 12, name="U"),  # fmt: skip
+        Footprint(
+            np.array(
+                [[100.0, 200], [200, 200], [200, 260], [180, 260], [180, 210], [120, 210], [120, 260], [100, 260]]
+            ),
+            12,
+            name="U",
+        ),  # fmt: skip
         Footprint(np.array([[300.0, 200], [340, 230], [300, 260.0], [320, 230]]), 8, name="arrow"),
     ]
     surf = SceneSurfaces(terrain=tin, footprints=fps)
@@ -175,6 +180,22 @@ def test_ground_faces_lie_on_the_tilted_plane(plane_mesh):
     assert area == pytest.approx(W * D * np.sqrt(1 + AX**2 + AY**2), rel=1e-12)
     _, _, top = boundary_faces(plane_mesh, BOUNDARY_OPEN)
     assert np.sum(np.all(top[..., 2] == HI[2], axis=1)) == plane_mesh.stats["n_boundary_faces"]["top"]
+
+
+def test_reflecting_top_and_explicit_base_z():
+    fp = Footprint(BOX, 12.0, base_z=30.0, material=3)
+    tm = build(SceneSurfaces(terrain=plane_grid(), footprints=[fp]), top="reflect")
+    assert tm.stats["roofs"][0]["roof_z"] == 42.0
+    c, f, pts = boundary_faces(tm, BOUNDARY_REFLECT)
+    top = np.all(pts[..., 2] == HI[2], axis=1)
+    assert top.sum() == tm.stats["n_boundary_faces"]["top"] > 0
+    np.testing.assert_array_equal(tm.cells.planes[c[top], f[top], :3], np.tile([0.0, 0.0, 1.0], (top.sum(), 1)))
+    roof = np.all(pts[..., 2] == 42.0, axis=1)
+    assert roof.sum() == tm.stats["n_boundary_faces"]["roofs"] > 0
+    assert np.all(tm.cells.face_material[c[roof], f[roof]] == 3)
+    _, _, side = boundary_faces(tm, BOUNDARY_OPEN)  # only the four sides stay open
+    on_side = [np.all(side[..., ax] == val, axis=1) for ax in (0, 1) for val in (LO[ax], HI[ax])]
+    assert len(side) == tm.stats["n_boundary_faces"]["sides"] and np.all(np.any(on_side, axis=0))
 
 
 def test_bilinear_grid_vertices_lie_on_the_surface():
@@ -383,8 +404,9 @@ def test_ray_fans_reflect_off_a_wall_and_a_roof(building_mesh):
     ok = (hit[:, 1] > 101) & (hit[:, 1] < 159) & (hit[:, 2] < roof - 1) & (hit[:, 2] > plane(150.0, hit[:, 1]) + 1)
     d, hit = d[ok], hit[ok]
     d_ref = d - 2 * (d @ m_wall)[:, None] * m_wall
-    ground_hit = hit + _hit(hit, d_ref, m_ground, h_ground)[:, None] * d_ref
-    ok = np.all((ground_hit[:, :2] > LO[:2] + 1) & (ground_hit[:, :2] < HI[:2] - 1), axis=1)
+    u2 = _hit(hit, d_ref, m_ground, h_ground)
+    ground_hit = hit + np.where(np.isfinite(u2), u2, 0.0)[:, None] * d_ref
+    ok = np.isfinite(u2) & np.all((ground_hit[:, :2] > LO[:2] + 1) & (ground_hit[:, :2] < HI[:2] - 1), axis=1)
     d, hit, d_ref, ground_hit = d[ok], hit[ok], d_ref[ok], ground_hit[ok]
     assert len(d) >= 30
     r0 = _trace(tm, src, d, 0)

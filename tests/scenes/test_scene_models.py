@@ -113,20 +113,42 @@ def test_file_errors_are_prefixed_with_the_field(tmp_path):
     _, _, materials = _specs()
     text = _spec_error(SceneFileError, TerrainSpec(file="missing.asc"), None, materials, "scene.terrain.file: ")
     assert text.endswith("missing.asc: file not found")
-    (tmp_path / "b.geojson").write_text(json.dumps({"type": "FeatureCollection", "features": [
-        {"type": "Feature", "properties": {"height": 5, "material": "glass"},
-         "geometry": {"type": "Polygon", "coordinates": [[[0, 0], [5, 0], [0, 5]]]}}]}))  # fmt: skip
-    _spec_error(SceneFileError, None, BuildingsSpec(file="b.geojson"), materials,
-                "scene.buildings.file: ", base_dir=tmp_path)  # fmt: skip
-    _spec_error(SceneFileError, None, BuildingsSpec(file="b.geojson"), materials,
-                "feature 0: material 'glass' is not defined in scene.materials (defined: rigid, grass, brick)",
-                base_dir=tmp_path)  # fmt: skip
+    (tmp_path / "b.geojson").write_text(
+        json.dumps(
+            {
+                "type": "FeatureCollection",
+                "features": [
+                    {
+                        "type": "Feature",
+                        "properties": {"height": 5, "material": "glass"},
+                        "geometry": {"type": "Polygon", "coordinates": [[[0, 0], [5, 0], [0, 5]]]},
+                    }
+                ],
+            }
+        )
+    )
+    _spec_error(
+        SceneFileError, None, BuildingsSpec(file="b.geojson"), materials, "scene.buildings.file: ", base_dir=tmp_path
+    )
+    _spec_error(
+        SceneFileError,
+        None,
+        BuildingsSpec(file="b.geojson"),
+        materials,
+        "feature 0: material 'glass' is not defined in scene.materials (defined: rigid, grass, brick)",
+        base_dir=tmp_path,
+    )
 
 
 def test_material_references():
     terrain, buildings, materials = _specs()
-    _spec_error(SceneSpecError, TerrainSpec(file="hill.asc", material="sand"), None, materials,
-                "scene.terrain.material: material 'sand' is not defined (rigid, grass, brick)")  # fmt: skip
+    _spec_error(
+        SceneSpecError,
+        TerrainSpec(file="hill.asc", material="sand"),
+        None,
+        materials,
+        "scene.terrain.material: material 'sand' is not defined (rigid, grass, brick)",
+    )
     inline = BuildingsSpec(footprints=[FootprintSpec(polygon=[(0, 0), (5, 0), (0, 5)], height_m=3, material="wood")])
     _spec_error(SceneSpecError, None, inline, materials, "scene.buildings.footprints.0.material: material 'wood'")
     twice = [*materials, MaterialSpec(name="grass", flow_resistivity=1e5)]
@@ -136,18 +158,33 @@ def test_material_references():
 def test_buildings_outside_overlapping_or_too_tall():
     terrain, _, materials = _specs()
     outside = FootprintSpec(polygon=[(480, 0), (520, 0), (520, 20)], height_m=5, name="shed")
-    _spec_error(SceneSpecError, terrain, BuildingsSpec(footprints=[outside]), materials,
-                "scene.buildings.footprints.0 ('shed'): vertex (520, 0) is outside the domain's xy box")  # fmt: skip
+    _spec_error(
+        SceneSpecError,
+        terrain,
+        BuildingsSpec(footprints=[outside]),
+        materials,
+        "scene.buildings.footprints.0 ('shed'): vertex (520, 0) is outside the domain's xy box",
+    )
     on_barn = FootprintSpec(polygon=[(-200, 150), (-150, 150), (-150, 170)], height_m=5)
-    _spec_error(SceneSpecError, terrain, BuildingsSpec(file="buildings.geojson", footprints=[on_barn]), materials,
-                "scene.buildings.file: 'barn' overlaps scene.buildings.footprints.0")  # fmt: skip
+    _spec_error(
+        SceneSpecError,
+        terrain,
+        BuildingsSpec(file="buildings.geojson", footprints=[on_barn]),
+        materials,
+        "scene.buildings.file: 'barn' overlaps scene.buildings.footprints.0",
+    )
     beside = FootprintSpec(polygon=[(-185, 150), (-150, 150), (-150, 170), (-185, 170)], height_m=5)  # shares a wall
     surfaces_from_specs(
         terrain, BuildingsSpec(file="buildings.geojson", footprints=[beside]), materials, EXAMPLES, DOMAIN
     )
     tower = FootprintSpec(polygon=[(0, 0), (10, 0), (0, 10)], height_m=290)
-    _spec_error(SceneSpecError, terrain, BuildingsSpec(footprints=[tower]), materials,
-                "scene.buildings.footprints.0: the roof at z = 3")  # fmt: skip
+    _spec_error(
+        SceneSpecError,
+        terrain,
+        BuildingsSpec(footprints=[tower]),
+        materials,
+        "scene.buildings.footprints.0: the roof at z = 3",
+    )
 
 
 def test_obstacle_outside_domain(tmp_path):
@@ -156,8 +193,14 @@ def test_obstacle_outside_domain(tmp_path):
     box.apply_translation((495, 0, 50))
     box.export(tmp_path / "box.stl")
     spec = BuildingsSpec(obstacles=[{"file": "box.stl"}])
-    _spec_error(SceneSpecError, None, spec, [], "scene.buildings.obstacles.0.file: 4 vertices lie outside the domain",
-                base_dir=tmp_path)  # fmt: skip
+    _spec_error(
+        SceneSpecError,
+        None,
+        spec,
+        [],
+        "scene.buildings.obstacles.0.file: 4 vertices lie outside the domain",
+        base_dir=tmp_path,
+    )
 
 
 def test_triangle_terrain_with_a_hole(tmp_path):
@@ -168,8 +211,14 @@ def test_triangle_terrain_with_a_hole(tmp_path):
     quads = [(i * 11 + j, i * 11 + j + 1, (i + 1) * 11 + j + 1, (i + 1) * 11 + j) for i in range(10) for j in range(10)]
     faces = [f for k, (a, b, c, d) in enumerate(quads) if k != 55 for f in ((a, b, c), (a, c, d))]  # one missing
     trimesh.Trimesh(v, np.array(faces), process=False).export(tmp_path / "holey.ply")
-    _spec_error(SceneSpecError, TerrainSpec(file="holey.ply"), None, [],
-                "scene.terrain.file: the terrain mesh has a hole over the domain", base_dir=tmp_path)  # fmt: skip
+    _spec_error(
+        SceneSpecError,
+        TerrainSpec(file="holey.ply"),
+        None,
+        [],
+        "scene.terrain.file: the terrain mesh has a hole over the domain",
+        base_dir=tmp_path,
+    )
 
 
 def test_footprint_base_is_lowest_terrain_under_polygon():
@@ -189,8 +238,13 @@ def test_points_above_ground_inside_buildings_and_obstacles():
     ground = surfaces.terrain.z[10, 10]  # the node at x = 0, y = 0
     barn = surfaces.footprints[0]
     barn_base = footprint_base_z(surfaces.terrain, barn, 0.0)
-    points = [(0, 0, ground + 1.5), (0, 0, ground - 3.2), (-200, 150, barn_base + 4), (-200, 150, barn_base + 9.5),
-              (600, 0, 10)]  # fmt: skip
+    points = [
+        (0, 0, ground + 1.5),
+        (0, 0, ground - 3.2),
+        (-200, 150, barn_base + 4),
+        (-200, 150, barn_base + 9.5),
+        (600, 0, 10),
+    ]
     names = [f"sources.{i}.position" for i in range(len(points))]
     with pytest.raises(SceneSpecError) as info:
         check_points_above_ground(surfaces, points, names)

@@ -186,6 +186,9 @@ def test_npy_npz_errors(tmp_path):
     np.savez(tmp_path / "a.npz", z=np.ones((3, 3)), origin=[0, 0], spacing=[1, 1])
     _raises(read_terrain, tmp_path / "a.npz", origin=(0, 0), spacing=(1, 1), match="only for .npy terrain")
     _raises(read_terrain, tmp_path / "a.tif", match="unknown terrain format 'tif'")
+    # sizes are read from the headers: a 35 kB compressed archive must not inflate to 36 MB first
+    np.savez_compressed(tmp_path / "bomb.npz", z=np.zeros((6000, 6000), np.uint8), origin=[0, 0], spacing=[1, 1])
+    _raises(read_height_npz, tmp_path / "bomb.npz", match="z has shape (6000, 6000): more than 25,000,000 values")
 
 
 # ---------------------------------------------------------------------------------------------
