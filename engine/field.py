@@ -126,7 +126,7 @@ def prepare(spec: FieldSpec, *, ray_weights: np.ndarray, source_index: np.ndarra
     alpha = energy_absorption(spec)
     q2 = build_q2_table(np.asarray(spec.frequencies_hz, float), materials, c=ground_sound_speed)
     q2tab, q2ax = q2.table, q2.grid
-    n_slots = int(n_slots or numba.get_num_threads())
+    n_slots = int(numba.get_num_threads() if n_slots is None else n_slots)  # 0: a template, no accumulators
     h = spec.sample_fraction * float(np.min(spec.spacing))
     if spec.mode == "coherent":
         groups = min(int(max_reflections), MAX_COHERENT_GROUPS - 1) + 1

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 from bentray.engine.kernels.field import FGEO_SIZE, FIELD_COHERENT, FIELD_INCOHERENT, FIELD_OFF
@@ -83,6 +84,8 @@ class FieldBuffers:
         self.mode = mode
         self.grid = grid
         self.n_slots = int(n_slots)
+        self.h_sample = float(h_sample)
+        self.n_groups = int(n_groups)
         n_vox = grid.n_points
         self.weights = np.ascontiguousarray(weights, dtype=np.float64)
         n_f = self.weights.shape[1]
@@ -121,6 +124,47 @@ class FieldBuffers:
             np.int64(self.code), self.fgeo, self.fshape, self.alpha, self.band_of, self.q2tab, self.q2ax,
             self.energy, self.hits, self.c_energy, self.c_perp2, self.c_time, self.c_length, self.c_ray,
         )
+
+    def like(self, weights: np.ndarray, n_slots: int | None = None) -> FieldBuffers:
+        """Fresh (zeroed) accumulators with the same grid and tables for another set of rays (a batch).
+
+        Slots: ``n_slots``, else this object's, else (a template built with 0 slots) this process's numba
+        thread count."""
+        return FieldBuffers(self.mode, self.grid, weights, self.alpha, self.band_of, self.q2tab, self.q2ax,
+                            self.h_sample, n_slots or self.n_slots or numba.get_num_threads(), self.n_groups)
+
+    def collapse(self, ray_offset: int = 0) -> FieldBuffers:
+        """Sum the slots into one (in slot order) and shift coherent ray ids by ``ray_offset``: the partial
+        field of a ray batch, ready for :meth:`add`. Returns self (one slot, weights dropped)."""
+        n_vox = self.hits.shape[1]
+        self.hits = self.hits.sum(axis=0, keepdims=True)
+        if self.code == FIELD_INCOHERENT:
+            self.energy = self.energy.sum(axis=0, keepdims=True)
+        else:
+            best = np.argmin(self.c_perp2, axis=0)[None]
+            for name in ("c_perp2", "c_time", "c_length", "c_ray"):
+                setattr(self, name, np.take_along_axis(getattr(self, name), best, axis=0))
+            self.c_energy = self.c_energy.sum(axis=0, keepdims=True)
+            self.c_ray = np.where(self.c_ray >= 0, self.c_ray + int(ray_offset), -1)
+        self.n_slots = 1
+        self.weights = np.zeros((0, self.weights.shape[1]))
+        assert self.hits.shape == (1, n_vox)
+        return self
+
+    def add(self, other: FieldBuffers) -> None:
+        """Add another collapsed batch (later in ray order) into this collapsed one: sums, and the nearest
+        coherent sample (ties keep the earlier batch, so the order of batches fixes the result)."""
+        if self.n_slots != 1 or other.n_slots != 1:
+            raise ValueError("add() combines collapsed batches (call collapse() first)")
+        self.hits += other.hits
+        if self.code == FIELD_INCOHERENT:
+            self.energy += other.energy
+            return
+        self.c_energy += other.c_energy
+        closer = other.c_perp2 < self.c_perp2
+        for name in ("c_perp2", "c_time", "c_length", "c_ray"):
+            mine = getattr(self, name)
+            mine[closer] = getattr(other, name)[closer]
 
     def reduce(self) -> FieldReduced:
         hits = self.hits.sum(axis=0)

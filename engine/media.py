@@ -33,6 +33,9 @@ from bentray.engine.mesh.slabs import build_slab_mesh, locate_in_slabs, slab_geo
 from bentray.engine.profiles import Profile
 from bentray.engine.result import MeshGeometry
 from bentray.engine.surfaces import HeightGrid, SceneSurfaces, TriangleSurface
+from bentray.engine.wind import sizing_quantity, wind_is_stratified
+
+Wind = tuple[int, np.ndarray]
 
 # Defaults chosen by measurement (README, "Accuracy against cost"): on A-LD (log profile, b = +1,
 # 91 rays, 10 s) delta = 1e-8 gives ~2,300 layers and 1.4e-6 relative position error; 1e-6 gives
@@ -59,24 +62,36 @@ class Media:
     stats: dict[str, Any] = field(default_factory=dict)
 
 
-def choose_representation(profile: Profile, requested: str) -> tuple[str, str]:
-    """(representation, reason) for a profile and the job's ``solver.representation``."""
-    horizontal = not profile.stratified
+def choose_representation(profile: Profile, requested: str, wind: Wind | None = None) -> tuple[str, str]:
+    """(representation, reason) for a profile, an optional wind and the job's ``solver.representation``.
+
+    A log wind over flat ground varies with z only (slabs carry it; the kernel adds u . e per ray); the
+    ridge wind varies in x too (tets). ``uniform`` is exact only in still air: one cell cannot carry the
+    wind's gradient.
+    """
+    windy = wind is not None
+    horizontal = not profile.stratified or (windy and not wind_is_stratified(int(wind[0])))
+    still_air = profile.kind == "homogeneous" and not windy
     if requested != "auto":
         if requested in ("uniform", "slabs") and horizontal:
+            what = f"profile kind {profile.kind!r}" if not profile.stratified else "the ridge wind"
             raise JobInputError(
-                f"solver.representation: {requested!r} needs a stratified profile, but profile kind "
-                f"{profile.kind!r} varies horizontally; use 'tets' or 'auto'"
+                f"solver.representation: {requested!r} needs a stratified medium, but {what} "
+                "varies horizontally; use 'tets' or 'auto'"
             )
-        if requested == "uniform" and profile.kind != "homogeneous":
+        if requested == "uniform" and not still_air:
+            what = "with wind" if windy else f"for profile {profile.kind!r}"
             raise JobInputError(
-                f"solver.representation: 'uniform' is only exact for a homogeneous profile, not {profile.kind!r}"
+                f"solver.representation: 'uniform' is only exact for a homogeneous profile in still air, not {what}"
             )
         return requested, "requested by solver.representation"
-    if profile.kind == "homogeneous":
+    if still_air:
         return "uniform", "homogeneous medium: one cell, straight rays, no media mesh"
     if not horizontal:
-        return "slabs", "stratified profile over flat ground: horizontal layers, no 3D mesh"
+        extra = " (the log wind adds u . e per ray in the kernel)" if windy else ""
+        return "slabs", f"stratified medium over flat ground: horizontal layers, no 3D mesh{extra}"
+    if profile.stratified:
+        return "tets", "the ridge wind varies in x and z: adaptive tetrahedral mesh sized on the downwind medium"
     return "tets", f"profile {profile.kind!r} varies in 3D: adaptive tetrahedral mesh (Algorithm 2 + Delaunay)"
 
 
@@ -116,12 +131,19 @@ def build_media(
     *,
     ground: str = "reflect",
     top: str = "open",
+    wind: Wind | None = None,
 ) -> Media:
-    """Build the representation the job needs for the traced quantity of ``curve``."""
+    """Build the representation the job needs for the traced quantity of ``curve``.
+
+    wind : (code, params) of engine.wind, or None. The mesh carries the profile alone (the kernel adds
+    u . e per ray); its sizing uses the downwind effective medium c + |u| (physics.md section 6).
+    """
     lo = np.asarray(domain_min, float)
     hi = np.asarray(domain_max, float)
     quantity = CURVE_QUANTITY[curve]
-    representation, reason = choose_representation(profile, solver.representation)
+    representation, reason = choose_representation(profile, solver.representation, wind)
+    size_q = sizing_quantity(profile.sound_speed, profile.c_ref, wind, quantity) if wind is not None else None
+    size_n = sizing_quantity(profile.sound_speed, profile.c_ref, wind, "n") if wind is not None else None
     extent = float(np.max(hi - lo))
     t0 = time.perf_counter()
     if representation in ("uniform", "slabs"):
@@ -132,17 +154,24 @@ def build_media(
             pts = np.column_stack([np.full(len(z), centre[0]), np.full(len(z), centre[1]), z])
             return profile.quantity(quantity, pts)
 
+        def column(z: np.ndarray) -> np.ndarray:
+            z = np.atleast_1d(np.asarray(z, float))
+            return np.column_stack([np.full(len(z), centre[0]), np.full(len(z), centre[1]), z])
+
+        def size_m_at_z(z: np.ndarray) -> np.ndarray:
+            return size_q(column(z)) if size_q is not None else m_at_z(z)
+
         stats: dict[str, Any] = {}
         if representation == "uniform":
             z_levels = np.array([lo[2], hi[2]])
         else:
             rule, tol, d_min, d_max = _sizing_params(solver, "slabs", hi[2] - lo[2])
             if rule == "gradient":
-                n_at_z = lambda z: profile.quantity("n", np.column_stack(  # noqa: E731
-                    [np.full(len(z), centre[0]), np.full(len(z), centre[1]), z]))
+                n_at_z = lambda z: size_n(column(z)) if size_n is not None else profile.quantity(  # noqa: E731
+                    "n", column(z))
                 z_levels = gradient_layers(lo[2], hi[2], n_at_z, epsilon=tol, d_min=d_min, d_max=d_max)
             else:
-                z_levels = curvature_layers(lo[2], hi[2], m_at_z, delta=tol, d_min=d_min, d_max=d_max)
+                z_levels = curvature_layers(lo[2], hi[2], size_m_at_z, delta=tol, d_min=d_min, d_max=d_max)
             stats.update({"sizing_rule": rule, "tolerance": tol, "d_min_m": d_min, "d_max_m": d_max})
         mesh = build_slab_mesh(lo, hi, z_levels, m_at_z, ground=ground, top=top)
         thickness = np.diff(z_levels)
@@ -166,10 +195,12 @@ def build_media(
             geometry=lambda: slab_geometry(lo, hi, mesh, z_levels, quantity),
             stats=stats,
         )
-    return _build_tets(profile, quantity, solver, lo, hi, representation, reason, ground, top, extent, t0)
+    return _build_tets(profile, quantity, solver, lo, hi, representation, reason, ground, top, extent, t0,
+                       size_q, size_n)
 
 
-def _build_tets(profile, quantity, solver, lo, hi, representation, reason, ground, top, extent, t0) -> Media:
+def _build_tets(profile, quantity, solver, lo, hi, representation, reason, ground, top, extent, t0,
+                size_q=None, size_n=None) -> Media:
     from bentray.engine.mesh.fcc import fcc_resample
     from bentray.engine.mesh.tets import approximation_error, build_tet_mesh
 
@@ -183,8 +214,8 @@ def _build_tets(profile, quantity, solver, lo, hi, representation, reason, groun
     if native is not None and np.ndim(native) == 1 and len(native) == 3:
         grid_step = float(np.min(native))
     spacing = sizing_grid_spacing(
-        quantity_at,
-        lambda p: profile.quantity("n", p),
+        size_q if size_q is not None else quantity_at,
+        size_n if size_n is not None else (lambda p: profile.quantity("n", p)),
         lo,
         hi,
         rule=rule,
@@ -220,13 +251,18 @@ def _build_tets(profile, quantity, solver, lo, hi, representation, reason, groun
         quantity=quantity,
         mesh=mesh,
         locate=lambda xyz: locate_points(mesh, xyz),
-        geometry=lambda: MeshGeometry(
-            points=tet.points,
-            connectivity=tet.tets,
-            cell_type="tetra",
-            cell_data={quantity: mesh.media_ref.copy(), f"grad_{quantity}": mesh.gradient.copy()},
-        ),
+        geometry=lambda: tet_geometry(tet.points, tet.tets, mesh, quantity),
         stats=stats,
+    )
+
+
+def tet_geometry(points: np.ndarray, tets: np.ndarray, mesh: CellMesh, quantity: str) -> MeshGeometry:
+    """mesh.vtu content of a tetrahedral media mesh: the traced quantity and its gradient per cell."""
+    return MeshGeometry(
+        points=points,
+        connectivity=tets,
+        cell_type="tetra",
+        cell_data={quantity: mesh.media_ref.copy(), f"grad_{quantity}": mesh.gradient.copy()},
     )
 
 
@@ -321,11 +357,6 @@ def build_terrain_media(
         quantity=quantity,
         mesh=mesh,
         locate=lambda xyz: locate_in_terrain_mesh(tet, xyz, index),
-        geometry=lambda: MeshGeometry(
-            points=tet.points,
-            connectivity=tet.tets,
-            cell_type="tetra",
-            cell_data={quantity: mesh.media_ref.copy(), f"grad_{quantity}": mesh.gradient.copy()},
-        ),
+        geometry=lambda: tet_geometry(tet.points, tet.tets, mesh, quantity),
         stats=stats,
     )

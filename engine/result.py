@@ -85,3 +85,36 @@ class JobOutcome:
     mesh_geometry: MeshGeometry | None
     report: dict[str, Any]
     field: Any | None = None  # engine.field.FieldArrays when the job asked for a field
+
+
+def concat_traces(parts: list[TraceResult]) -> TraceResult:
+    """One TraceResult from consecutive ray batches (in ray order); paths are re-offset."""
+    if not parts:
+        raise ValueError("no trace batches to combine")
+    if len(parts) == 1:
+        return parts[0]
+
+    def cat(name: str) -> np.ndarray | None:
+        arrays = [getattr(p, name) for p in parts]
+        if any(a is None for a in arrays):
+            return None
+        return np.concatenate(arrays, axis=0)
+
+    paths = None
+    if all(p.paths is not None for p in parts):
+        offsets = [np.zeros(1, dtype=np.int64)]
+        base = 0
+        for p in parts:
+            assert p.paths is not None
+            offsets.append(p.paths.offsets[1:] + base)
+            base += int(p.paths.offsets[-1])
+        paths = RayPaths(
+            offsets=np.concatenate(offsets),
+            points=np.concatenate([p.paths.points for p in parts if p.paths is not None]),
+            time_s=np.concatenate([p.paths.time_s for p in parts if p.paths is not None]),
+            length_m=np.concatenate([p.paths.length_m for p in parts if p.paths is not None]),
+        )
+    required = {name: cat(name) for name in ("source", "elevation_deg", "azimuth_deg", "position", "direction",
+                                             "time_s", "length_m", "reflections", "status", "crossings", "nudges")}
+    return TraceResult(**required, paths=paths, steps=cat("steps"),  # type: ignore[arg-type]
+                       reflection_cos=cat("reflection_cos"), reflection_material=cat("reflection_material"))

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import os
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -16,16 +18,20 @@ import numpy as np
 
 import bentray
 from bentray.engine import field as field_stage
+from bentray.engine.constants import CURVE_QUANTITY
 from bentray.engine.errors import JobInputError
+from bentray.engine.field_buffers import FieldBuffers
 from bentray.engine.media import build_media, build_terrain_media
 from bentray.engine.mesh.cells import CellMesh
-from bentray.engine.result import JobOutcome, TraceResult
+from bentray.engine.result import JobOutcome, TraceResult, concat_traces
 from bentray.engine.surfaces import SceneSurfaces
 from bentray.engine.tracer import trace
+from bentray.engine.wind import sizing_quantity
 from bentray.scenes.library.registry import get_builtin
 from bentray.scenes.profile_models import profile_from_spec
 from bentray.scenes.scene_models import check_points_above_ground, surfaces_from_specs
 from bentray.scenes.schema import Job
+from bentray.scenes.wind_models import wind_from_spec
 
 
 def launch_fan(job: Job) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -77,30 +83,178 @@ def _wants_paths(job: Job) -> bool:
     return "rays" in job.outputs or "paths" in job.outputs
 
 
-def run_job(job: Job, base_dir: Path | None = None) -> JobOutcome:
-    """Run a validated job in this process and return everything it produced (nothing is written)."""
+@dataclass
+class TracePlan:
+    """Everything a ray batch needs, as plain arrays (picklable: sent once to scale-out workers).
+
+    origins, directions : (n, 3) float64, metres / unit vectors, world frame; start_cells : (n,) int64.
+    field : accumulator template (zero-size weights are taken per batch from ``field_weights``) or None.
+    baseline : None for the analytic curves, else the numerical method's keyword arguments.
+    """
+
+    mesh: CellMesh
+    curve: str
+    c_ref: float
+    wind: tuple[int, np.ndarray] | None
+    origins: np.ndarray
+    directions: np.ndarray
+    start_cells: np.ndarray
+    max_time_s: float
+    max_reflections: int
+    max_steps: int
+    path_samples: int
+    field: FieldBuffers | None = None
+    field_weights: np.ndarray | None = None
+    baseline: dict[str, Any] | None = None
+
+    @property
+    def n_rays(self) -> int:
+        return int(self.origins.shape[0])
+
+    def batches(self, batch_rays: int) -> list[tuple[int, int]]:
+        """Consecutive [start, stop) ray ranges of at most ``batch_rays`` rays."""
+        n = self.n_rays
+        size = max(int(batch_rays), 1)
+        return [(a, min(a + size, n)) for a in range(0, n, size)] or [(0, 0)]
+
+
+@dataclass
+class BatchResult:
+    """One batch's rays (in order) and its collapsed partial field; restarts for the baselines."""
+
+    start: int
+    stop: int
+    trace: TraceResult
+    field: FieldBuffers | None = None
+    restarts: np.ndarray | None = None
+    seconds: float = 0.0
+
+
+def trace_batch(plan: TracePlan, start: int, stop: int) -> BatchResult:
+    """Trace rays ``start:stop`` of the plan (in this process, numba threads) and collapse its field."""
+    t0 = time.perf_counter()
+    sl = slice(start, stop)
+    restarts = None
+    buffers = None
+    if plan.baseline is not None:
+        from bentray.engine.baselines.trace_numerical import trace_numerical
+
+        result, restarts = trace_numerical(
+            plan.baseline["method"], plan.baseline["media"], mesh=plan.mesh, quantity=plan.baseline["quantity"],
+            exact_spec=plan.baseline["exact_spec"], c_ref=plan.c_ref, origins=plan.origins[sl],
+            directions=plan.directions[sl], start_cells=plan.start_cells[sl], max_time_s=plan.max_time_s,
+            max_reflections=plan.max_reflections, max_steps=plan.max_steps, step_m=plan.baseline["step_m"],
+            tolerance=plan.baseline["tolerance"], path_samples=plan.path_samples,
+            domain_min=plan.baseline["domain_min"], domain_max=plan.baseline["domain_max"],
+            ground_z=plan.baseline["ground_z"], top=plan.baseline["top"],
+        )
+    else:
+        if plan.field is not None:
+            assert plan.field_weights is not None
+            buffers = plan.field.like(plan.field_weights[sl])
+        result = trace(
+            plan.mesh, plan.curve, plan.c_ref, plan.origins[sl], plan.directions[sl], plan.start_cells[sl],
+            max_time_s=plan.max_time_s, max_reflections=plan.max_reflections, max_steps=plan.max_steps,
+            path_samples=plan.path_samples, field=buffers, wind=plan.wind,
+        )
+        if buffers is not None:
+            buffers.collapse(ray_offset=start)
+    return BatchResult(start, stop, result, buffers, restarts, time.perf_counter() - t0)
+
+
+def combine_batches(parts: list[BatchResult]) -> tuple[TraceResult, FieldBuffers | None, np.ndarray | None]:
+    """Rays concatenated in order, partial fields summed in batch order (the same order on any executor)."""
+    parts = sorted(parts, key=lambda b: b.start)
+    trace_result = concat_traces([b.trace for b in parts])
+    field_sum = None
+    if parts[0].field is not None:
+        field_sum = parts[0].field
+        for b in parts[1:]:
+            assert b.field is not None
+            field_sum.add(b.field)
+    restarts = None
+    if parts[0].restarts is not None:
+        restarts = np.concatenate([b.restarts for b in parts if b.restarts is not None])
+    return trace_result, field_sum, restarts
+
+
+ProgressFn = Callable[[str, float], None]
+
+
+class LocalExecutor:
+    """Runs the batches one after another in this process (each batch uses every numba thread)."""
+
+    name = "local"
+
+    def run_batches(self, plan: TracePlan, ranges: list[tuple[int, int]],
+                    on_batch: Callable[[BatchResult], None] | None = None) -> list[BatchResult]:
+        out = []
+        for a, b in ranges:
+            part = trace_batch(plan, a, b)
+            out.append(part)
+            if on_batch is not None:
+                on_batch(part)
+        return out
+
+    def describe(self) -> str:
+        return f"local process, {numba.get_num_threads()} numba threads"
+
+
+def default_executor() -> Any:
+    """The executor selected by configuration: ``BENTRAY_DASK_SCHEDULER`` (scale-out) or local."""
+    address = os.environ.get("BENTRAY_DASK_SCHEDULER", "").strip()
+    if address:
+        from bentray.engine.dask_executor import DaskExecutor  # optional dependency
+
+        return DaskExecutor(address)
+    return LocalExecutor()
+
+
+def run_job(job: Job, base_dir: Path | None = None, *, progress: ProgressFn | None = None,
+            executor: Any = None) -> JobOutcome:
+    """Run a validated job and return everything it produced (nothing is written).
+
+    progress(stage, fraction) is called at each stage and after each ray batch (fraction of the whole
+    job, 0..1). executor: an object with ``run_batches(plan, ranges, on_batch)`` (default: local, or
+    Dask when ``BENTRAY_DASK_SCHEDULER`` is set).
+    """
+    report_progress: ProgressFn = progress or (lambda stage, fraction: None)
     timings: dict[str, float] = {}
     stages: dict[str, str] = {}
+    solver = job.solver
+    report_progress("profile", 0.0)
 
     t0 = time.perf_counter()
     profile = profile_from_spec(job.profile, base_dir=str(base_dir) if base_dir is not None else None)
     timings["profile"] = time.perf_counter() - t0
     stages["profile"] = f"ran: {profile.kind}"
+    wind = wind_from_spec(job.wind) if job.wind is not None else None
+    stages["wind"] = (f"ran: {job.wind.kind} wind, effective sound speed c + u . e per ray azimuth"
+                      if job.wind is not None else "skipped: no wind (no wind arrays)")
 
     domain = job.scene.box
     lo = np.asarray(domain.min, float)
     hi = np.asarray(domain.max, float)
+    report_progress("scene", 0.02)
     t0 = time.perf_counter()
     surfaces = load_surfaces(job, base_dir)
     timings["scene"] = time.perf_counter() - t0
     stages["scene"] = (f"ran: {_describe_surfaces(surfaces)}" if surfaces is not None
                        else "skipped: flat ground, no terrain or buildings (no constrained meshing)")
+    report_progress("mesh", 0.05)
     t0 = time.perf_counter()
-    if surfaces is not None:
-        media = build_terrain_media(profile, job.solver.curve, job.solver, lo, hi, surfaces, top=job.scene.top.kind)
-    else:
-        media = build_media(profile, job.solver.curve, job.solver, lo, hi, ground="reflect",
+    mesh_curve = solver.mesh_curve
+    if solver.is_baseline and solver.media == "exact":
+        # the closed-form profile is integrated directly: the mesh only locates nothing; one box cell
+        media = build_media(profile, mesh_curve, solver.model_copy(update={"representation": "uniform"})
+                            if profile.kind == "homogeneous" else solver, lo, hi, ground="reflect",
                             top=job.scene.top.kind)
+    elif surfaces is not None:
+        qfn = sizing_quantity(profile.sound_speed, profile.c_ref, wind, CURVE_QUANTITY[mesh_curve]) if wind else None
+        media = build_terrain_media(profile, mesh_curve, solver, lo, hi, surfaces, top=job.scene.top.kind,
+                                    quantity_fn=qfn)
+    else:
+        media = build_media(profile, mesh_curve, solver, lo, hi, ground="reflect", top=job.scene.top.kind, wind=wind)
     timings["mesh"] = time.perf_counter() - t0
     stages["mesh"] = f"ran: {media.representation} ({media.reason})"
 
@@ -120,27 +274,44 @@ def run_job(job: Job, base_dir: Path | None = None) -> JobOutcome:
 
     record = _wants_paths(job)
     mesh = media.mesh
-    buffers = None
+    template = None
     powers = None
+    materials: list[float | None] = []
     if job.field is not None:
         t0 = time.perf_counter()
         materials = _materials(job, surfaces)
-        mesh, buffers, powers = _prepare_field(job, profile, mesh, src_idx, materials)
+        mesh, template, powers = _prepare_field(job, profile, mesh, src_idx, materials)
         timings["field_setup"] = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    result: TraceResult = trace(
-        mesh, job.solver.curve, profile.c_ref, origins, dirs, start_cells,
-        max_time_s=job.rays.max_time_s, max_reflections=job.rays.max_reflections,
-        max_steps=job.rays.max_steps, path_samples=job.solver.path_samples if record else 0,
-        field=buffers,
+    plan = TracePlan(
+        mesh=mesh, curve=mesh_curve, c_ref=float(profile.c_ref), wind=wind, origins=origins, directions=dirs,
+        start_cells=start_cells, max_time_s=job.rays.max_time_s, max_reflections=job.rays.max_reflections,
+        max_steps=job.rays.max_steps, path_samples=solver.path_samples if record else 0, field=template,
+        field_weights=template.weights if template is not None else None,
+        baseline=_baseline_args(job, profile, lo, hi) if solver.is_baseline else None,
     )
+
+    runner = executor if executor is not None else default_executor()
+    ranges = plan.batches(solver.batch_rays)
+    done = [0]
+
+    def on_batch(part: BatchResult) -> None:
+        done[0] += part.stop - part.start
+        report_progress("trace", min(0.1 + 0.8 * done[0] / max(plan.n_rays, 1), 0.9))
+
+    report_progress("trace", 0.1)
+    t0 = time.perf_counter()
+    parts = runner.run_batches(plan, ranges, on_batch)
+    result, buffers, restarts = combine_batches(parts)
     timings["trace"] = time.perf_counter() - t0
-    stages["trace"] = f"ran: {job.solver.curve} curve, {result.n_rays} rays" + (
-        " (field accumulated along the curves)" if buffers is not None else "")
+    how = (f"numerical baseline {solver.curve} on {solver.media or 'mesh'} media" if solver.is_baseline
+           else f"{solver.curve} curve")
+    stages["trace"] = (f"ran: {how}, {result.n_rays} rays in {len(ranges)} batch(es) on "
+                       f"{runner.describe()}" + (" (field accumulated along the curves)" if template else ""))
     stages["paths"] = "ran: sampled on the true curves" if record else "skipped: no 'rays' or 'paths' output"
     result.source = src_idx
     result.elevation_deg = el
     result.azimuth_deg = az
+    report_progress("field", 0.9)
     field_arrays = None
     if job.field is not None and buffers is not None:
         t0 = time.perf_counter()
@@ -172,9 +343,32 @@ def run_job(job: Job, base_dir: Path | None = None) -> JobOutcome:
 
     report = build_report(job, profile.describe(), media.representation, media.reason, media.stats,
                           result, timings, stages)
+    report["batches"] = {"count": len(ranges), "batch_rays": solver.batch_rays, "executor": runner.name}
+    if job.wind is not None:
+        report["wind"] = job.wind.model_dump(mode="json")
+    if restarts is not None:
+        report["rays"]["restarts_total"] = int(restarts.sum())
     if field_arrays is not None:
         report["field"] = field_arrays.stats
+    report_progress("done", 1.0)
     return JobOutcome(trace=result, mesh_geometry=geometry, report=report, field=field_arrays)
+
+
+def _baseline_args(job: Job, profile, lo: np.ndarray, hi: np.ndarray) -> dict[str, Any]:
+    """Keyword arguments of engine.baselines.trace_numerical for the job's solver."""
+    from bentray.engine.baselines.exact_media import exact_media_spec
+
+    solver = job.solver
+    media = solver.media or "mesh"
+    exact = exact_media_spec(profile) if media == "exact" else None
+    adaptive = solver.curve in ("euler_adaptive", "dopri5")
+    return {
+        "method": solver.curve, "media": media, "quantity": CURVE_QUANTITY[solver.mesh_curve], "exact_spec": exact,
+        # defaults: 1 m fixed steps (the GPU paper's order of magnitude); adaptive: 1e-8 m local error
+        "step_m": solver.step_m if solver.step_m is not None else 1.0,
+        "tolerance": solver.tolerance if solver.tolerance is not None else (1e-8 if adaptive else 1e-8),
+        "domain_min": lo, "domain_max": hi, "ground_z": float(lo[2]), "top": job.scene.top.kind,
+    }
 
 
 def _materials(job: Job, surfaces: SceneSurfaces | None) -> list[float | None]:
@@ -185,7 +379,8 @@ def _materials(job: Job, surfaces: SceneSurfaces | None) -> list[float | None]:
 
 
 def _prepare_field(job: Job, profile, mesh: CellMesh, src_idx: np.ndarray, materials: list[float | None]):
-    """Ground material on the mesh, per-ray launch weights, source powers (W) and the accumulators."""
+    """Ground material on the mesh, source powers (W) and the accumulator template (per-ray launch weights,
+    tables; no slots: each batch allocates its own)."""
     spec = job.field
     assert spec is not None
     if job.scene.ground.flow_resistivity is not None and not job.scene.has_surfaces:
@@ -200,7 +395,7 @@ def _prepare_field(job: Job, profile, mesh: CellMesh, src_idx: np.ndarray, mater
                            for src in job.sources])
     buffers = field_stage.prepare(spec, ray_weights=weights, source_index=src_idx, source_powers_w=powers,
                                   materials=materials, max_reflections=job.rays.max_reflections,
-                                  ground_sound_speed=float(profile.sound_speed(ground_point)[0]))
+                                  ground_sound_speed=float(profile.sound_speed(ground_point)[0]), n_slots=0)
     return mesh, buffers, powers
 
 

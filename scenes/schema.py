@@ -33,6 +33,7 @@ from bentray.scenes.field_models import MAX_COHERENT_FIELD_POINTS, FieldSpec
 from bentray.scenes.library.registry import BUILTIN_SCENES as _REGISTRY
 from bentray.scenes.profile_models import ProfileSpec
 from bentray.scenes.scene_models import BuildingsSpec, MaterialSpec, TerrainSpec, material_reference_errors
+from bentray.scenes.wind_models import WindSpec
 
 __all__ = [
     "BUILTIN_SCENES",
@@ -56,6 +57,9 @@ __all__ = [
 # Limits (each one says what it protects against).
 MAX_DOMAIN_EXTENT_M = 1.0e6  # 1000 km: beyond any outdoor-acoustics scene; catches unit mistakes (mm, km)
 MIN_DOMAIN_EXTENT_M = 1.0e-3  # 1 mm: a thinner box cannot be meshed meaningfully
+BASELINE_CURVES = ("euler", "euler_adaptive", "rk4", "dopri5")
+# Rays per trace batch (the unit of progress, of scale-out tasks and of the field's summation order).
+DEFAULT_BATCH_RAYS = 50_000
 MAX_TOTAL_RAYS = 10_000_000  # sources x elevations x azimuths; keeps one job's arrays to a few GB
 MAX_SOURCES = 10_000
 MAX_TIME_S = 3600.0
@@ -305,7 +309,7 @@ class Solver(_Model):
     "gradient" explicitly, so compare solvers by dump or by ``effective_sizing``, not with ``==``).
     """
 
-    curve: Literal["parabolic", "circular", "n_linear"] = "parabolic"
+    curve: Literal["parabolic", "circular", "n_linear", "euler", "euler_adaptive", "rk4", "dopri5"] = "parabolic"
     representation: Literal["auto", "uniform", "slabs", "tets"] = "auto"
     sizing: Literal["curvature", "gradient"] = "curvature"
     epsilon: float | None = Field(default=None, gt=0)
@@ -314,6 +318,23 @@ class Solver(_Model):
     d_max_m: float | None = Field(default=None, gt=0)
     gradient: Literal["lsq", "green_gauss"] = "lsq"
     path_samples: int = Field(default=400, ge=2)
+    # numerical baselines (engine/baselines): fixed step / first step in metres of arc, local error
+    # tolerance of the adaptive ones, and the media they integrate (the mesh's linear model, or the
+    # closed-form profile)
+    step_m: float | None = Field(default=None, gt=0, le=1e5)
+    tolerance: float | None = Field(default=None, gt=0, lt=1)
+    media: Literal["mesh", "exact"] | None = None
+    batch_rays: int = Field(default=DEFAULT_BATCH_RAYS, ge=1, le=MAX_TOTAL_RAYS)
+
+    @property
+    def is_baseline(self) -> bool:
+        """True for the numerical integrators (euler, euler_adaptive, rk4, dopri5)."""
+        return self.curve in BASELINE_CURVES
+
+    @property
+    def mesh_curve(self) -> str:
+        """The analytic curve whose traced quantity the media mesh carries (baselines: parabolic, n^2)."""
+        return "parabolic" if self.is_baseline else self.curve
 
     @property
     def effective_sizing(self) -> Literal["curvature", "gradient"]:
@@ -347,6 +368,15 @@ class Solver(_Model):
                     self.delta,
                 )
             )
+        if not self.is_baseline:
+            for key in ("step_m", "tolerance", "media"):
+                if getattr(self, key) is not None:
+                    errors.append(((key,), f"{key} applies to the numerical baselines "
+                                           f"({', '.join(BASELINE_CURVES)}), not to curve {self.curve!r}",
+                                   getattr(self, key)))
+        elif self.tolerance is not None and self.curve not in ("euler_adaptive", "dopri5"):
+            errors.append((("tolerance",), f"{self.curve} takes fixed steps (step_m); tolerance applies to "
+                                           "euler_adaptive and dopri5", self.tolerance))
         if self.d_min_m is not None and self.d_max_m is not None and self.d_min_m > self.d_max_m:
             errors.append(
                 (
@@ -370,6 +400,7 @@ class Job(_Model):
     name: str = Field(pattern=_NAME_RE)
     scene: Scene
     profile: ProfileSpec
+    wind: WindSpec | None = None
     sources: list[Source] = Field(min_length=1, max_length=MAX_SOURCES)
     rays: Rays
     solver: Solver = Field(default_factory=Solver)
@@ -424,9 +455,26 @@ class Job(_Model):
                 )
             )
         errors.extend(self._field_errors())
+        errors.extend(self._baseline_errors())
         if errors:
             _fail(errors, "Job")
         return self
+
+    def _baseline_errors(self) -> list[tuple[tuple[str | int, ...], str, Any]]:
+        """What the numerical baselines do not support (they are measured, not production, solvers)."""
+        solver = self.solver
+        if not solver.is_baseline:
+            return []
+        errors: list[tuple[tuple[str | int, ...], str, Any]] = []
+        why = f"solver.curve {solver.curve!r} (a numerical baseline)"
+        if self.wind is not None:
+            errors.append((("wind",), f"{why} integrates the profile without wind; use an analytic curve", None))
+        if self.field is not None:
+            errors.append((("field",), f"{why} does not accumulate fields; use an analytic curve", None))
+        if solver.media == "exact" and self.scene.has_surfaces:
+            errors.append((("solver", "media"), "'exact' media know flat ground only; use 'mesh' with terrain "
+                                                "or buildings", solver.media))
+        return errors
 
     def _field_errors(self) -> list[tuple[tuple[str | int, ...], str, Any]]:
         """Consistency of ``field`` with outputs, domain, fan and source powers."""
