@@ -2,7 +2,8 @@
 
 The import-time environment defaults below must run before numpy/numba load:
 - ``NUMBA_CACHE_DIR``: kernels use ``cache=True``; a read-only checkout would otherwise fail at import.
-  The default folder is keyed by a hash of the engine's source: numba invalidates a cached kernel when
+  The folder (default under ~/.cache/bentray, or a subfolder of the user's NUMBA_CACHE_DIR) is keyed by
+  a hash of the engine's source: numba invalidates a cached kernel when
   its own file changes but not when a function it calls from another module does, so an upgrade or an
   edit could otherwise run stale machine code (this happened here with the ground-reflection table).
 - ``OPENBLAS_NUM_THREADS=1``: scipy's first ``Delaunay.find_simplex`` took over 100 s on the 2-core
@@ -42,5 +43,18 @@ def _default_numba_cache_dir() -> str:
     return os.path.join(tempfile.gettempdir(), "bentray-numba-cache", _engine_source_key())
 
 
-os.environ.setdefault("NUMBA_CACHE_DIR", _default_numba_cache_dir())
+def _keyed_numba_cache_dir() -> str:
+    """The cache folder numba will use: a user-set NUMBA_CACHE_DIR gets the engine-source key appended
+    (once), so a changed kernel dependency can never load stale machine code from it either."""
+    given = os.environ.get("NUMBA_CACHE_DIR", "").strip()
+    if not given:
+        return _default_numba_cache_dir()
+    key = _engine_source_key()
+    if os.path.basename(os.path.normpath(given)) == key:
+        return given
+    return os.path.join(given, key)
+
+
+if "numba" not in __import__("sys").modules:  # numba reads NUMBA_CACHE_DIR when it is first imported
+    os.environ["NUMBA_CACHE_DIR"] = _keyed_numba_cache_dir()
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")

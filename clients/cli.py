@@ -1,7 +1,9 @@
 """The ``bentray`` command line.
 
-    bentray run JOB.json --out DIR [--threads N]
+    bentray run JOB.json --out DIR [--threads N] [--dask ADDR]
+    bentray sweep JOB.json --param PATH --values V1,V2,... --out DIR [--dask ADDR]
     bentray bench --out DIR [--quick] [--only NAME ...]
+    bentray scenes [--resolution medium|high] [--json] [--job NAME]
 
 Exit status: 0 success; 2 invalid command line or job file (unreadable, invalid JSON or schema
 errors, printed one ``field.path: reason`` per line on stderr); 1 any other error during the run
@@ -102,8 +104,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     from bentray.engine.run import run_job
     from bentray.engine.writers import write_outcome
 
+    executor = None
+    if args.dask:
+        from bentray.engine.dask_executor import DaskExecutor
+
+        executor = DaskExecutor(args.dask)
     t0 = time.perf_counter()
-    outcome = run_job(job, job_path.absolute().parent)
+    outcome = run_job(job, job_path.absolute().parent, executor=executor)
     written = write_outcome(outcome, list(job.outputs), out_dir)
     print(_summary(job, outcome, written, time.perf_counter() - t0))
     return 0
@@ -114,6 +121,9 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     p.add_argument("job", help="job file (JSON, see scenes/examples/)")
     p.add_argument("--out", required=True, help="output directory (created; files replaced all-or-nothing)")
     p.add_argument("--threads", type=_positive_int, default=None, help="numba threads (default: all)")
+    p.add_argument("--dask", metavar="ADDR", default=None,
+                   help="run the ray batches on this Dask scheduler, e.g. tcp://host:8786 "
+                        "(default: BENTRAY_DASK_SCHEDULER, else this process)")
     p.set_defaults(func=cmd_run)
 
 
@@ -148,8 +158,72 @@ def _add_bench(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_bench)
 
 
+# ---------------------------------------------------------------------------------------------
+# bentray scenes
+# ---------------------------------------------------------------------------------------------
+def cmd_scenes(args: argparse.Namespace) -> int:
+    import json
+
+    from bentray.scenes.library.registry import scene_table
+
+    if args.job is not None:
+        from bentray.scenes.library.jobs import builtin_job_spec
+
+        try:
+            spec = builtin_job_spec(args.job, resolution=args.resolution)
+        except ValueError as exc:
+            raise CommandError(str(exc), code=2) from None
+        print(json.dumps(spec, indent=1))
+        return 0
+    rows = scene_table(args.resolution)
+    if args.json:
+        print(json.dumps(rows, indent=1))
+        return 0
+    cols = ["name", "domain_m", "triangles", "buildings", "sources", "profile"]
+    width = {c: max(len(c), *(len(str(r[c])) for r in rows)) for c in cols}
+    print("  ".join(c.ljust(width[c]) for c in cols))
+    for r in rows:
+        print("  ".join(str(r[c]).ljust(width[c]) for c in cols))
+    print()
+    for r in rows:
+        print(f"{r['name']}: {r['description']}")
+    return 0
+
+
+def _add_scenes(sub: argparse._SubParsersAction) -> None:
+    from bentray.scenes.library.registry import BUILTIN_SCENES, RESOLUTIONS
+
+    p = sub.add_parser("scenes", help="list the built-in scenes with their stats",
+                       description="List the built-in scenes (scene.builtin) with their size, surface "
+                                   "triangles, buildings, sources and default profile.")
+    p.add_argument("--resolution", choices=list(RESOLUTIONS), default="medium")
+    p.add_argument("--json", action="store_true", help="print the table as JSON")
+    p.add_argument("--job", choices=list(BUILTIN_SCENES), metavar="NAME",
+                   help="print a ready-to-run job file for this scene (10,000 rays, 3 reflections) instead")
+    p.set_defaults(func=cmd_scenes)
+
+
 # Each entry adds one subcommand parser (with set_defaults(func=handler)).
-COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_run, _add_bench]
+COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_run, _add_bench, _add_scenes]
+
+
+def _add_sweep(sub: argparse._SubParsersAction) -> None:
+    from bentray.clients.sweep_cli import add_sweep  # bentray sweep (one job per parameter value)
+
+    add_sweep(sub)
+
+
+COMMANDS.append(_add_sweep)
+
+
+def _add_service_verbs(sub: argparse._SubParsersAction) -> None:
+    from bentray.clients.service_cli import SERVICE_COMMANDS  # serve, submit, status, fetch, cancel
+
+    for add in SERVICE_COMMANDS:
+        add(sub)
+
+
+COMMANDS.append(_add_service_verbs)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -47,15 +47,16 @@ def face_exit_parameter(a: float, b: float, c: float, is_entry: bool, on_face_to
       grazes back out through the face it came in by is handled by the non-zero root.
     - other faces: a positive up-crossing counts; a point already on or beyond the plane
       (``c > -on_face_tol``) that moves outward (``b > 0``) exits at once (parameter 0). This is the
-      rounding case at edges and vertices, and it keeps the walk going instead of losing the ray.
+      rounding case at edges and vertices, and it keeps the walk going instead of losing the ray. So does
+      a point on the plane moving exactly along it (``b == 0``) and curving outward (``a > 0``).
     """
     if is_entry:
         c = 0.0
     r = upcrossing_root(a, b, c)
-    if r > 0.0:
+    if 0.0 < r < NO_ROOT:
         return r
-    if (not is_entry) and c > -on_face_tol and b > 0.0:
-        return 0.0
+    if (not is_entry) and c > -on_face_tol and (b > 0.0 or (b == 0.0 and a > 0.0)):
+        return 0.0  # moving out, or tangent and curving out (a grazing ray on the ground): exit at once
     return NO_ROOT
 
 

@@ -52,6 +52,21 @@ from bentray.engine.wind import WIND_NONE, effective_quantity
 # Zero-length steps in a row (edge/vertex walks) before the ray is nudged: a walk around one edge
 # of a Delaunay mesh visits at most a few dozen cells.
 MAX_ZERO_STEPS = 64
+# A step shorter than TINY_STEP_REL * cell size makes no progress: a ray that starts on an edge shared by
+# many cells and moves within one of their faces (a source on a terrain-grid column, launched along a
+# grid line) can circle the edge with steps of 1e-10 m. MAX_ZERO_STEPS such steps in a row -> nudge.
+TINY_STEP_REL = 1e-6
+# Sliding: a stalled ray within SLIDE_DIST_REL * cell size of a face and moving along it (|d . m| <=
+# SLIDE_COS) sits in a zero-width channel of the piecewise-linear medium: the per-cell gradients on the
+# two sides of the face both push it back toward the face (a gradient jump the continuous medium does
+# not have), so the exact per-cell curves zig-zag across it with steps of 1e-8 m forever. It then
+# slides: x and d are projected onto the face plane and the next segment uses the two cells' mean
+# gradient without its normal part, so it stays in the plane until another face (counted as a nudge).
+SLIDE_DIST_REL = 1e-6
+SLIDE_COS = 1e-3
+# A ray that meets a reflecting face with |d . m| <= GRAZE_COS at a zero-length step (it sits on the
+# face, tangent to it, curving into it) slides along the face instead of reflecting without effect.
+GRAZE_COS = 1e-12
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -96,6 +111,24 @@ def _chord_middle(planes, neighbours, x, d, out):
     for i in range(3):
         out[i] = x[i] + 0.5 * best * d[i]
     return True
+
+
+@nb.njit(**NJIT_FLAGS)
+def _tangent_face(planes, neighbours, x, d, cell_size):
+    """Face of one cell that x lies on and d moves along (the most tangent one), or -1."""
+    best = -1
+    best_cos = SLIDE_COS
+    for f in range(planes.shape[0]):
+        if neighbours[f] == FACE_UNUSED:
+            continue
+        dist = planes[f, 0] * x[0] + planes[f, 1] * x[1] + planes[f, 2] * x[2] - planes[f, 3]
+        if abs(dist) > SLIDE_DIST_REL * cell_size:
+            continue
+        c = abs(planes[f, 0] * d[0] + planes[f, 1] * d[1] + planes[f, 2] * d[2])
+        if c <= best_cos:
+            best_cos = c
+            best = f
+    return best
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -237,6 +270,8 @@ def trace_one(
     nudges = 0
     nudge_run = 0
     zero_run = 0
+    slide_face = -1
+    g_slide = np.empty(3)
     steps = 0
     status = STATUS_RUNNING
     count = 0
@@ -264,19 +299,32 @@ def trace_one(
                 effective_quantity(curve, c_ref, _media_at(media_ref, ref_point, gradient, cell, x_mid), g,
                                    wind_code, wind_params, x_mid, e_wind, w_grad, g_eff)
             g = g_eff
+        exclude = entry
+        if slide_face >= 0:
+            # slide along the face: the mean gradient of the two sides without its normal part
+            nb_cell = neighbours[cell, slide_face]
+            for i in range(3):
+                g_slide[i] = g[i]
+                if nb_cell >= 0 and not wind_on:
+                    g_slide[i] = 0.5 * (g[i] + gradient[nb_cell, i])
+            gm = (g_slide[0] * planes[cell, slide_face, 0] + g_slide[1] * planes[cell, slide_face, 1]
+                  + g_slide[2] * planes[cell, slide_face, 2])
+            for i in range(3):
+                g_slide[i] -= gm * planes[cell, slide_face, i]
+            g = g_slide
+            exclude = slide_face
+            slide_face = -1
         if not curves.setup(curve, m0, g, d, cs):
             status = STATUS_LOST
             break
         cell_size = size[cell]
         face, param = curves.find_exit(
-            curve, cs, x, d, planes[cell], neighbours[cell], entry, ON_FACE_REL * cell_size, cell_size
+            curve, cs, x, d, planes[cell], neighbours[cell], exclude, ON_FACE_REL * cell_size, cell_size
         )
         if face < 0:
             param = curves.interior_step(curve, cs)  # circular: a quarter turn inside the cell
         if param == 0.0:
             zero_run += 1
-        else:
-            zero_run = 0
         if (face < 0 and not math.isfinite(param)) or zero_run > MAX_ZERO_STEPS:
             # rounding at an edge or vertex left no consistent exit: nudge and re-locate
             nudges += 1
@@ -285,6 +333,19 @@ def trace_one(
             if nudge_run > MAX_NUDGES_IN_A_ROW:
                 status = STATUS_LOST
                 break
+            tf = _tangent_face(planes[cell], neighbours[cell], x, d, size[cell])
+            if tf >= 0:
+                dist = planes[cell, tf, 0] * x[0] + planes[cell, tf, 1] * x[1] + planes[cell, tf, 2] * x[2]
+                dist -= planes[cell, tf, 3]
+                dm = d[0] * planes[cell, tf, 0] + d[1] * planes[cell, tf, 1] + d[2] * planes[cell, tf, 2]
+                for i in range(3):
+                    x[i] -= dist * planes[cell, tf, i]
+                    d[i] -= dm * planes[cell, tf, i]
+                norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+                for i in range(3):
+                    d[i] /= norm
+                slide_face = tf
+                continue
             eta = NUDGE_REL * cell_size
             for i in range(3):
                 x[i] += eta * d[i]
@@ -319,6 +380,10 @@ def trace_one(
             status = STATUS_TIME_LIMIT
             break
         ds = curves.evaluate(curve, cs, x, d, param, xn, dn)
+        if ds > TINY_STEP_REL * cell_size:
+            zero_run = 0
+        elif param != 0.0:
+            zero_run += 1
         if f_on:
             _deposit(fld, curve, cs, x, d, xn, param, t, s, dt, ds, c_ref, m0, g, f_weights,
                      refl_cos, refl_mat, reflections, gq, fst, last_vox, ray_id, acc, xs, ts)
@@ -349,10 +414,16 @@ def trace_one(
             cell = nxt
             crossings += 1
         elif nxt == BOUNDARY_REFLECT:
+            dot = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
+            if param == 0.0 and abs(dot) <= GRAZE_COS:
+                # on the boundary, moving along it and curving into it: the limit of vanishing bounces
+                # is creeping along the surface; slide (no reflection: the direction would not change)
+                slide_face = face
+                entry = -1
+                continue
             if reflections >= max_reflections:
                 status = STATUS_REFLECTION_LIMIT
                 break
-            dot = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
             if f_on:  # time gathered before the reflection belongs to the incoming ray
                 _flush(fld, x, d, t, s, _slowness_at(curve, c_ref, media_ref, ref_point, gradient, cell, x,
                                                       ray_wind, wind_params, e_wind, w_grad, g_tmp),

@@ -79,8 +79,6 @@ def test_grazing_launch_downward_refraction_bounces_stay_above_ground():
     _check_baselines(case)
 
 
-@pytest.mark.xfail(strict=True, reason="traversal: a ray tangent to the ground (c = 0, b = 0) that curves into it "
-                   "finds no exit (roots.face_exit_parameter) and ends below the ground")
 def test_grazing_launch_downward_refraction_creeps_along_the_ground():
     """A-LD, elevation exactly 0 on the ground: the limit of vanishing bounces creeps along the ground at
     c(0): x = c0 t, z = 0 (the baselines slide there: checked to 1e-5)."""
