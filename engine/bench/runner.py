@@ -58,6 +58,12 @@ def _throughput(quick: bool, cache: dict[str, Any]) -> Section:
     return throughput.run(quick, scene_cache=cache)
 
 
+def _table1(quick: bool, cache: dict[str, Any]) -> Section:
+    from bentray.engine.bench import table1
+
+    return table1.run(quick)
+
+
 def _extreme(quick: bool, cache: dict[str, Any]) -> Section:
     from bentray.engine.bench import extreme
 
@@ -73,6 +79,7 @@ SECTIONS: dict[str, tuple[str, Callable[[bool, dict[str, Any]], Section]]] = {
     "scaling": ("Scaling (Fig. 8)", _scaling),
     "throughput": ("Throughput", _throughput),
     "extreme": ("Stiff and extreme cases", _extreme),
+    "table1": ("Built-in scenes end to end (Table 1)", _table1),
 }
 
 

@@ -38,6 +38,7 @@ DAM_Y_M = 0.0
 DAM_THICKNESS_M = 10.0
 LAKE_LEVEL_M = 67.0
 DAM_CREST_M = 72.0
+DAM_SEAT_M = 3.0  # the dam ends where the slope is this far below its crest (margin for grid interpolation)
 
 
 def valley_floor(y: np.ndarray) -> np.ndarray:
@@ -71,12 +72,22 @@ def valley_height(x: np.ndarray, y: np.ndarray, seed: int = SEED) -> np.ndarray:
 
 
 def _dam(seed: int) -> Footprint:
-    """A straight dam across the valley at y = 0, reaching 15 m into each slope beyond the crest level."""
+    """A straight dam across the valley at y = 0, reaching into each slope up to where the ground is
+    DAM_SEAT_M below the crest (a footprint's roof must stay above the terrain under it; the few metres
+    left between the dam's end and the slope are far below the crest and closed by the slope itself)."""
     floor = float(valley_floor(DAM_Y_M))
-    # on the slope (roughness aside) the ground reaches the crest at d = w arccosh(1 / (1 - rise / H))
-    half = SLOPE_WIDTH_M * np.arccosh(1.0 / (1.0 - (DAM_CREST_M - floor) / SLOPE_HEIGHT_M)) + 15.0
     x0 = float(valley_axis_x(DAM_Y_M, seed))
     t = DAM_THICKNESS_M / 2
+    # widest half-width whose two long edges and a fine sampling of the footprint stay DAM_SEAT_M below
+    # the crest (the roughness makes the slope uneven, so search rather than use the smooth formula)
+    xs = np.linspace(0.0, 600.0, 6001)
+    ys = np.linspace(DAM_Y_M - t, DAM_Y_M + t, 5)
+    limit = DAM_CREST_M - DAM_SEAT_M
+    ok = np.ones_like(xs, dtype=bool)
+    for sign in (-1.0, 1.0):
+        for y in ys:
+            ok &= _natural(x0 + sign * xs, np.full_like(xs, y), seed) < limit
+    half = float(xs[np.argmin(ok)] - 0.1) if not ok.all() else float(xs[-1])
     polygon = np.array(
         [[x0 - half, DAM_Y_M - t], [x0 + half, DAM_Y_M - t], [x0 + half, DAM_Y_M + t], [x0 - half, DAM_Y_M + t]]
     )
