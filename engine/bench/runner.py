@@ -70,6 +70,12 @@ def _extreme(quick: bool, cache: dict[str, Any]) -> Section:
     return extreme.run(quick)
 
 
+def _linked_surfaces(quick: bool, cache: dict[str, Any]) -> Section:
+    from bentray.engine.bench import linked_surfaces
+
+    return linked_surfaces.run(quick)
+
+
 # name -> (title, runner(quick, shared scene-mesh cache) -> Section)
 SECTIONS: dict[str, tuple[str, Callable[[bool, dict[str, Any]], Section]]] = {
     "convergence": ("Convergence of the three curves (Fig. 3)", _convergence),
@@ -80,6 +86,7 @@ SECTIONS: dict[str, tuple[str, Callable[[bool, dict[str, Any]], Section]]] = {
     "throughput": ("Throughput", _throughput),
     "extreme": ("Stiff and extreme cases", _extreme),
     "table1": ("Built-in scenes end to end (Table 1)", _table1),
+    "linked_surfaces": ("Appendix C: embedded vs linked surfaces", _linked_surfaces),
 }
 
 
