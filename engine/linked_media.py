@@ -12,7 +12,7 @@ import numpy as np
 from bentray.engine.constants import CURVE_CODES
 from bentray.engine.kernels.traverse_linked import trace_linked_rays
 from bentray.engine.mesh.linked import LinkedMesh
-from bentray.engine.result import RayPaths, TraceResult
+from bentray.engine.result import TraceResult, gather_paths, kernel_trace_result
 from bentray.engine.tracer import path_capacity
 
 __all__ = ["trace_linked"]
@@ -67,26 +67,7 @@ def trace_linked(
     )
     if surface_tests is not None:
         surface_tests[:] = out_counts[:, 6]
-    paths = None
-    if record:
-        counts = out_counts[:, 5]
-        offsets = np.zeros(n + 1, dtype=np.int64)
-        np.cumsum(counts, out=offsets[1:])
-        keep = (np.arange(cap)[None, :] < counts[:, None]).reshape(-1)
-        paths = RayPaths(offsets=offsets, points=path_pts[keep], time_s=path_t[keep], length_m=path_s[keep])
-    nan = np.full(n, np.nan)
-    return TraceResult(
-        source=np.zeros(n, dtype=np.int64),
-        elevation_deg=nan.copy(),
-        azimuth_deg=nan.copy(),
-        position=out_state[:, 0:3].copy(),
-        direction=out_state[:, 3:6].copy(),
-        time_s=out_state[:, 6].copy(),
-        length_m=out_state[:, 7].copy(),
-        reflections=out_counts[:, 1].copy(),
-        status=out_counts[:, 0].astype(np.int8),
-        crossings=out_counts[:, 2].copy(),
-        nudges=out_counts[:, 3].copy(),
-        paths=paths,
-        steps=out_counts[:, 4].copy(),
-    )
+    paths = gather_paths(path_pts, path_t, path_s, out_counts[:, 5], cap) if record else None
+    return kernel_trace_result(out_state, status=out_counts[:, 0], reflections=out_counts[:, 1],
+                               crossings=out_counts[:, 2], nudges=out_counts[:, 3], steps=out_counts[:, 4],
+                               paths=paths)

@@ -66,7 +66,7 @@ from bentray.engine.constants import (
     STATUS_TIME_LIMIT,
 )
 from bentray.engine.mesh.cells import CellMesh, locate_points
-from bentray.engine.result import RayPaths, TraceResult
+from bentray.engine.result import TraceResult, gather_paths, kernel_trace_result
 from bentray.engine.tracer import path_capacity
 
 __all__ = ["trace_numerical", "NUMERICAL_METHODS"]
@@ -554,30 +554,11 @@ def trace_numerical(
         int(max_reflections), int(max_steps), float(step_m), float(tolerance), bool(renormalize), record,
         float(max_time_s) / max(path_samples, 1), cap, path_pts, path_t, path_s, out_state, out_counts,
     )
-    paths = None
-    if record:
-        counts = out_counts[:, 7]
-        offsets = np.zeros(n + 1, dtype=np.int64)
-        np.cumsum(counts, out=offsets[1:])
-        keep = (np.arange(cap)[None, :] < counts[:, None]).reshape(-1)
-        paths = RayPaths(offsets=offsets, points=path_pts[keep], time_s=path_t[keep], length_m=path_s[keep])
+    paths = gather_paths(path_pts, path_t, path_s, out_counts[:, 7], cap) if record else None
     if stats is not None:
         stats["rejected"] = out_counts[:, 5].copy()
         stats["evaluations"] = out_counts[:, 6].copy()
-    nan = np.full(n, np.nan)
-    result = TraceResult(
-        source=np.zeros(n, dtype=np.int64),
-        elevation_deg=nan.copy(),
-        azimuth_deg=nan.copy(),
-        position=out_state[:, 0:3].copy(),
-        direction=out_state[:, 3:6].copy(),
-        time_s=out_state[:, 6].copy(),
-        length_m=out_state[:, 7].copy(),
-        reflections=out_counts[:, 1].copy(),
-        status=out_counts[:, 0].astype(np.int8),
-        crossings=out_counts[:, 2].copy(),
-        nudges=np.zeros(n, dtype=np.int64),
-        paths=paths,
-        steps=out_counts[:, 3].copy(),
-    )
+    result = kernel_trace_result(out_state, status=out_counts[:, 0], reflections=out_counts[:, 1],
+                                 crossings=out_counts[:, 2], nudges=np.zeros(n, dtype=np.int64),
+                                 steps=out_counts[:, 3], paths=paths)
     return result, out_counts[:, 4].copy()
