@@ -21,6 +21,7 @@ from bentray.engine import field as field_stage
 from bentray.engine.constants import CURVE_QUANTITY
 from bentray.engine.errors import JobInputError
 from bentray.engine.field_buffers import FieldBuffers
+from bentray.engine.ground_profile import AboveGround
 from bentray.engine.media import build_media, build_terrain_media
 from bentray.engine.mesh.cells import CellMesh
 from bentray.engine.result import JobOutcome, TraceResult, concat_traces
@@ -106,16 +107,22 @@ class TracePlan:
     field: FieldBuffers | None = None
     field_weights: np.ndarray | None = None
     baseline: dict[str, Any] | None = None
+    source: np.ndarray | None = None  # (n,) int64 source index per ray (source-major); None: one source
 
     @property
     def n_rays(self) -> int:
         return int(self.origins.shape[0])
 
     def batches(self, batch_rays: int) -> list[tuple[int, int]]:
-        """Consecutive [start, stop) ray ranges of at most ``batch_rays`` rays."""
+        """Consecutive [start, stop) ray ranges: per source, then blocks of at most ``batch_rays`` rays
+        of its launch fan (a range never straddles two sources; rays are source-major)."""
         n = self.n_rays
         size = max(int(batch_rays), 1)
-        return [(a, min(a + size, n)) for a in range(0, n, size)] or [(0, 0)]
+        if self.source is None or n == 0:
+            return [(a, min(a + size, n)) for a in range(0, n, size)] or [(0, 0)]
+        cuts = np.concatenate([[0], np.nonzero(np.diff(self.source))[0] + 1, [n]]).tolist()
+        spans = zip(cuts[:-1], cuts[1:], strict=True)
+        return [(a, min(a + size, hi)) for lo, hi in spans for a in range(lo, hi, size)]
 
 
 @dataclass
@@ -170,8 +177,8 @@ def combine_batches(parts: list[BatchResult]) -> tuple[TraceResult, FieldBuffers
     if parts[0].field is not None:
         field_sum = parts[0].field
         for b in parts[1:]:
-            assert b.field is not None
-            field_sum.add(b.field)
+            if b.field is not None:  # None: already summed, in batch order, into an earlier one (dask_executor)
+                field_sum.add(b.field)
     restarts = None
     if parts[0].restarts is not None:
         restarts = np.concatenate([b.restarts for b in parts if b.restarts is not None])
@@ -241,6 +248,8 @@ def run_job(job: Job, base_dir: Path | None = None, *, progress: ProgressFn | No
     timings["scene"] = time.perf_counter() - t0
     stages["scene"] = (f"ran: {_describe_surfaces(surfaces)}" if surfaces is not None
                        else "skipped: flat ground, no terrain or buildings (no constrained meshing)")
+    profile = _profile_heights(job, profile, surfaces, lo, hi)
+    stages["profile"] += f", heights {job.scene.profile_heights.replace('_', ' ')}"
     report_progress("mesh", 0.05)
     t0 = time.perf_counter()
     mesh_curve = solver.mesh_curve
@@ -287,7 +296,7 @@ def run_job(job: Job, base_dir: Path | None = None, *, progress: ProgressFn | No
         start_cells=start_cells, max_time_s=job.rays.max_time_s, max_reflections=job.rays.max_reflections,
         max_steps=job.rays.max_steps, path_samples=solver.path_samples if record else 0, field=template,
         field_weights=template.weights if template is not None else None,
-        baseline=_baseline_args(job, profile, lo, hi) if solver.is_baseline else None,
+        baseline=_baseline_args(job, profile, lo, hi) if solver.is_baseline else None, source=src_idx,
     )
 
     runner = executor if executor is not None else default_executor()
@@ -354,12 +363,31 @@ def run_job(job: Job, base_dir: Path | None = None, *, progress: ProgressFn | No
     return JobOutcome(trace=result, mesh_geometry=geometry, report=report, field=field_arrays)
 
 
+def _profile_heights(job: Job, profile, surfaces: SceneSurfaces | None, lo: np.ndarray, hi: np.ndarray):
+    """The profile measured from the ground (scene.profile_heights = "above_ground", the default) or in
+    world z. Nothing changes over flat ground at z = 0 or for a homogeneous medium."""
+    if job.scene.profile_heights == "absolute" or profile.kind == "homogeneous":
+        return profile
+    if surfaces is None or surfaces.terrain is None:
+        if float(lo[2]) == 0.0:
+            return profile
+        ground_z = float(lo[2])
+        return AboveGround(profile, lambda xy: np.full(len(xy), ground_z), flat=True)
+    from bentray.engine.mesh.terrain import terrain_height_function
+
+    return AboveGround(profile, terrain_height_function(surfaces.terrain, lo, hi), flat=False)
+
+
 def _baseline_args(job: Job, profile, lo: np.ndarray, hi: np.ndarray) -> dict[str, Any]:
     """Keyword arguments of engine.baselines.trace_numerical for the job's solver."""
     from bentray.engine.baselines.exact_media import exact_media_spec
 
     solver = job.solver
     media = solver.media or "mesh"
+    if media == "exact" and isinstance(profile, AboveGround):
+        raise JobInputError("solver.media: 'exact' integrates the closed-form profile in world z, but the domain "
+                            f"bottom is at z = {lo[2]:g} m and scene.profile_heights is 'above_ground'; "
+                            "set scene.profile_heights to 'absolute' or put the ground at z = 0")
     exact = exact_media_spec(profile) if media == "exact" else None
     adaptive = solver.curve in ("euler_adaptive", "dopri5")
     return {

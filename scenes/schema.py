@@ -59,7 +59,10 @@ MAX_DOMAIN_EXTENT_M = 1.0e6  # 1000 km: beyond any outdoor-acoustics scene; catc
 MIN_DOMAIN_EXTENT_M = 1.0e-3  # 1 mm: a thinner box cannot be meshed meaningfully
 BASELINE_CURVES = ("euler", "euler_adaptive", "rk4", "dopri5")
 # Rays per trace batch (the unit of progress, of scale-out tasks and of the field's summation order).
-DEFAULT_BATCH_RAYS = 50_000
+# Measured (engine/bench/scaling_dask.py): a batch costs ~1 ms locally and ~5-10 ms on Dask beyond its rays
+# (+ ~0.2 s per 1e6 field points x 8 bands), rays cost 0.1-1 ms each: 10,000 rays keep that near 1 % while
+# a 100k-ray job still spreads over 10 tasks and a batch's sampled paths stay ~160 MB (50,000: 800 MB).
+DEFAULT_BATCH_RAYS = 10_000
 MAX_TOTAL_RAYS = 10_000_000  # sources x elevations x azimuths; keeps one job's arrays to a few GB
 MAX_SOURCES = 10_000
 MAX_TIME_S = 3600.0
@@ -166,6 +169,9 @@ class Scene(_Model):
     terrain: TerrainSpec | None = None
     buildings: BuildingsSpec | None = None
     materials: list[MaterialSpec] = Field(default_factory=list, max_length=256)
+    # "above_ground": the profile's z is the height above the local ground (terrain, or the domain
+    # bottom); "absolute": world z (the paper's c(z); keep domain.min z at 0 for stratified laws)
+    profile_heights: Literal["above_ground", "absolute"] = "above_ground"
 
     @field_validator("builtin")
     @classmethod

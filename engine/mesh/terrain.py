@@ -160,6 +160,21 @@ def _terrain(surface: HeightGrid | TriangleSurface | None, lo: np.ndarray, hi: n
     raise ValueError(f"unsupported terrain type {type(surface).__name__}")
 
 
+def terrain_height_function(surface: HeightGrid | TriangleSurface | None, lo: np.ndarray,
+                            hi: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+    """Ground height z (metres) at plan points xy (N, 2) as the mesh sees it (bilinear grid, TIN, or
+    flat at lo z), clamped to the domain's xy box."""
+    lo = np.asarray(lo, dtype=np.float64)
+    hi = np.asarray(hi, dtype=np.float64)
+    spacing = float(np.max(hi[:2] - lo[:2]))
+    height = _terrain(surface, lo, hi, lambda xy: np.full(len(xy), spacing)).height
+
+    def ground(xy: np.ndarray) -> np.ndarray:
+        return height(np.clip(np.asarray(xy, dtype=np.float64), lo[:2], hi[:2]))
+
+    return ground
+
+
 def _check_footprints(footprints: list[Footprint], lo: np.ndarray, hi: np.ndarray) -> list[np.ndarray]:
     """Validate footprints (simple, disjoint, strictly inside the box, positive height); return polygons."""
     polys = []

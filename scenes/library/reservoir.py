@@ -26,7 +26,7 @@ from bentray.scenes.library.common import (
     surface_stats,
 )
 
-__all__ = ["SEED", "reservoir", "valley_height", "valley_axis_x", "LAKE_LEVEL_M", "DAM_CREST_M"]
+__all__ = ["SEED", "reservoir", "valley_height", "valley_axis_x", "LAKE_LEVEL_M", "DAM_CREST_M", "DAM_SEAT_M"]
 
 SEED = 2016_003
 DOMAIN_MIN = (-1000.0, -1000.0, 0.0)

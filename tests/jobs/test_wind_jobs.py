@@ -44,9 +44,10 @@ def test_still_air_fans_are_mirror_images(ridge_runs):
     a, b = ridge_runs[(False, "down")].trace, ridge_runs[(False, "up")].trace
     np.testing.assert_array_equal(a.reflections, b.reflections)
     # x mirrored, z equal. The prism split's diagonal rule is not mirror-symmetric, so the two fans see
-    # differently cut cells and per-cell gradients: measured 7e-5 m (4e-8 of the 1.7 km path); allow 1e-6.
-    np.testing.assert_allclose(a.position[:, 0], -b.position[:, 0], rtol=0, atol=1e-6 * 1700)
-    np.testing.assert_allclose(a.position[:, 2], b.position[:, 2], rtol=0, atol=1e-6 * 1700)
+    # differently cut cells and per-cell gradients (the profile follows the terrain, so the medium varies
+    # along the slopes): measured 3.5e-3 m (2e-6 of the 1.7 km path); allow 1e-5.
+    np.testing.assert_allclose(a.position[:, 0], -b.position[:, 0], rtol=0, atol=1e-5 * 1700)
+    np.testing.assert_allclose(a.position[:, 2], b.position[:, 2], rtol=0, atol=1e-5 * 1700)
 
 
 def test_downwind_bends_toward_the_ground_upwind_away(ridge_runs):
