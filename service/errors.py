@@ -1,0 +1,150 @@
+"""Typed service errors and their HTTP status codes, in one place.
+
+Routes raise these (never ``HTTPException``); :func:`install_error_handlers` turns them, pydantic
+``ValidationError`` of a job and FastAPI's own request validation errors into JSON bodies::
+
+    {"error": "invalid_job", "detail": "rays.elevation_deg.count: Input should be ...", "errors": [...]}
+
+``detail`` is the human text: for 422 it holds one ``field.path: reason`` line per problem, the same
+text as :func:`bentray.scenes.schema.format_validation_error` (and ``bentray run``'s exit-2 message);
+``errors`` lists the same as ``{"field": ..., "reason": ...}`` objects.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from pydantic import ValidationError
+
+from bentray.scenes.schema import JobFileError, format_validation_error
+
+__all__ = [
+    "AuthError",
+    "InvalidInputError",
+    "JobStateError",
+    "LengthRequiredError",
+    "NotFoundError",
+    "QueueFullError",
+    "ServiceError",
+    "UnsupportedMediaError",
+    "UploadTooLargeError",
+    "install_error_handlers",
+    "job_validation_error",
+    "lines_to_errors",
+]
+
+
+class ServiceError(Exception):
+    """Base: ``status`` is the HTTP code, ``code`` a stable machine name, ``detail`` the text."""
+
+    status = 500
+    code = "internal"
+
+    def __init__(self, detail: str, errors: list[dict[str, str]] | None = None) -> None:
+        super().__init__(detail)
+        self.detail = detail
+        self.errors = errors or []
+
+    def body(self) -> dict[str, Any]:
+        body: dict[str, Any] = {"error": self.code, "detail": self.detail}
+        if self.errors:
+            body["errors"] = self.errors
+        return body
+
+
+class InvalidInputError(ServiceError):
+    """A job, upload or name that cannot be accepted: detail is ``field.path: reason`` lines."""
+
+    status = 422
+    code = "invalid_job"
+
+    @classmethod
+    def from_lines(cls, lines: list[str], code: str | None = None) -> InvalidInputError:
+        err = cls("\n".join(lines), lines_to_errors(lines))
+        if code is not None:
+            err.code = code
+        return err
+
+
+class AuthError(ServiceError):
+    status = 401
+    code = "unauthorized"
+
+
+class NotFoundError(ServiceError):
+    """Unknown id, or a job of another API key (indistinguishable on purpose)."""
+
+    status = 404
+    code = "not_found"
+
+
+class JobStateError(ServiceError):
+    """The job exists but is not in a state that allows the request (e.g. results of a running job)."""
+
+    status = 409
+    code = "conflict"
+
+
+class LengthRequiredError(ServiceError):
+    status = 411
+    code = "length_required"
+
+
+class UnsupportedMediaError(ServiceError):
+    status = 415
+    code = "unsupported_media_type"
+
+
+class UploadTooLargeError(ServiceError):
+    status = 413
+    code = "too_large"
+
+
+class QueueFullError(ServiceError):
+    status = 429
+    code = "queue_full"
+
+
+def lines_to_errors(lines: list[str]) -> list[dict[str, str]]:
+    """``field.path: reason`` lines -> ``[{"field": "field.path", "reason": "reason"}]``."""
+    out = []
+    for line in lines:
+        field, sep, reason = line.partition(": ")
+        out.append({"field": field, "reason": reason} if sep else {"field": "job", "reason": line})
+    return out
+
+
+def job_validation_error(exc: ValidationError | JobFileError) -> InvalidInputError:
+    """The 422 error for a job that failed parsing (invalid JSON) or the schema."""
+    if isinstance(exc, ValidationError):
+        return InvalidInputError.from_lines(format_validation_error(exc).splitlines())
+    text = " ".join(str(exc).split())  # parse_job_text(origin="job") already starts with "job: "
+    return InvalidInputError.from_lines([text if text.startswith("job: ") else f"job: {text}"], code="invalid_json")
+
+
+def _request_error_lines(exc: RequestValidationError) -> list[str]:
+    lines = []
+    for err in exc.errors():
+        loc = [str(p) for p in err.get("loc", ()) if p not in ("body", "query", "path", "header", "form")]
+        lines.append(f"{'.'.join(loc) or 'request'}: {err.get('msg', 'invalid')}")
+    return lines
+
+
+def install_error_handlers(app: FastAPI) -> None:
+    """Register the one mapping from error types to responses on ``app``."""
+
+    async def service_error(request: Request, exc: Exception) -> JSONResponse:
+        assert isinstance(exc, ServiceError)
+        headers = {"WWW-Authenticate": "Bearer"} if isinstance(exc, AuthError) else None
+        return JSONResponse(exc.body(), status_code=exc.status, headers=headers)
+
+    async def request_validation(request: Request, exc: Exception) -> JSONResponse:
+        assert isinstance(exc, RequestValidationError)
+        err = InvalidInputError.from_lines(_request_error_lines(exc), code="invalid_request")
+        return JSONResponse(err.body(), status_code=err.status)
+
+    app.add_exception_handler(ServiceError, service_error)
+    app.add_exception_handler(RequestValidationError, request_validation)
