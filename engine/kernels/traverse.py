@@ -67,6 +67,9 @@ SLIDE_COS = 1e-3
 # A ray that meets a reflecting face with |d . m| <= GRAZE_COS at a zero-length step (it sits on the
 # face, tangent to it, curving into it) slides along the face instead of reflecting without effect.
 GRAZE_COS = 1e-12
+# A ray that crosses the same face back and forth PINGPONG_SLIDE times in a row while moving along it
+# (|d . m| <= SLIDE_COS) is in such a channel too, with steps too long to count as stalls: it slides.
+PINGPONG_SLIDE = 4
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -272,6 +275,8 @@ def trace_one(
     zero_run = 0
     slide_face = -1
     g_slide = np.empty(3)
+    prev_cell = -1
+    pp_run = 0
     steps = 0
     status = STATUS_RUNNING
     count = 0
@@ -410,6 +415,23 @@ def trace_one(
             continue
         nxt = neighbours[cell, face]
         if nxt >= 0:
+            dm = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
+            if nxt == prev_cell and abs(dm) <= SLIDE_COS:
+                pp_run += 1
+            else:
+                pp_run = 0
+            if pp_run >= PINGPONG_SLIDE:
+                # zig-zagging across this face: slide along it in the current cell
+                for i in range(3):
+                    d[i] -= dm * planes[cell, face, i]
+                norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+                for i in range(3):
+                    d[i] /= norm
+                slide_face = face
+                pp_run = 0
+                nudges += 1
+                continue
+            prev_cell = cell
             entry = neighbour_face[cell, face]
             cell = nxt
             crossings += 1
