@@ -258,6 +258,10 @@ def run_job(job: Job, base_dir: Path | None = None, *, progress: ProgressFn | No
         media = build_media(profile, mesh_curve, solver.model_copy(update={"representation": "uniform"})
                             if profile.kind == "homogeneous" else solver, lo, hi, ground="reflect",
                             top=job.scene.top.kind)
+    elif surfaces is not None and surfaces.obstacles:
+        from bentray.engine.media_obstacles import build_obstacle_media  # pytetwild (optional)
+
+        media = build_obstacle_media(profile, mesh_curve, solver, lo, hi, surfaces, top=job.scene.top.kind)
     elif surfaces is not None:
         qfn = sizing_quantity(profile.sound_speed, profile.c_ref, wind, CURVE_QUANTITY[mesh_curve]) if wind else None
         media = build_terrain_media(profile, mesh_curve, solver, lo, hi, surfaces, top=job.scene.top.kind,
