@@ -169,7 +169,7 @@ def run_sweep(job_path: Path, param: str, values: list[tuple[str, Any]], out_dir
     else:
         from distributed import as_completed
 
-        from bentray.engine.dask_executor import DEFAULT_RETRIES, DaskExecutor, on_worker
+        from bentray.engine.dask_executor import DEFAULT_RETRIES, DaskExecutor, aligned_arrays, on_worker
 
         client = DaskExecutor(dask).client
         tag = uuid.uuid4().hex[:12]
@@ -178,7 +178,8 @@ def run_sweep(job_path: Path, param: str, values: list[tuple[str, Any]], out_dir
         index = {f.key: i for i, f in enumerate(futures)}
         try:
             for fut, outcome in as_completed(futures, loop=client.loop, with_results=True):
-                finish(index[fut.key], outcome)
+                fut.release()
+                finish(index[fut.key], aligned_arrays(outcome))
         finally:
             client.cancel([f for f in futures if not f.done()])
     ordered = [rows[label] for label, *_ in specs]

@@ -40,6 +40,7 @@ from collections.abc import Callable
 from typing import Any
 
 import numba
+import numpy as np
 
 from bentray.engine.run import BatchResult, TracePlan, trace_batch
 
@@ -48,7 +49,8 @@ try:  # optional dependency: pip install "bentray[dask]"
 except ImportError as exc:  # pragma: no cover - exercised only without the extra
     raise ImportError("Dask scale-out needs the 'dask' extra: pip install 'bentray[dask]'") from exc
 
-__all__ = ["DEFAULT_RETRIES", "DaskExecutor", "InOrderSum", "connect", "disconnect", "on_worker", "task_numba_threads"]
+__all__ = ["DEFAULT_RETRIES", "DaskExecutor", "InOrderSum", "aligned_arrays", "connect", "disconnect", "on_worker",
+           "task_numba_threads"]
 
 # A batch is a pure function of (plan, start, stop): retrying it is always safe. Two retries cover a
 # transient failure plus one more; a worker that dies mid-task is rescheduled by the scheduler anyway
@@ -106,6 +108,45 @@ def on_worker(fn: Callable[..., Any], *args: Any, numba_threads: int | None = No
         numba_threads = task_numba_threads(nthreads)
     numba.set_num_threads(min(int(numba_threads), int(numba.config.NUMBA_NUM_THREADS)))
     return fn(*args, **kwargs)
+
+
+def aligned_arrays(obj: Any, _depth: int = 0) -> Any:
+    """``obj`` with every unaligned numpy array replaced by an aligned copy (dataclasses, objects and dicts
+    updated in place; tuples and NamedTuples rebuilt); returns the (possibly new) object.
+
+    Why: Dask delivers arrays as views into its message frames, sometimes at an offset that is not a
+    multiple of 8 (seen: the mesh's ``planes``). numba types an unaligned array as another type and compiles
+    every kernel again for it (a minute per worker process, cached then), and unaligned loads are slower.
+    """
+    if isinstance(obj, np.ndarray):
+        return obj if obj.flags.aligned else obj.copy()
+    if _depth > 4 or obj is None or isinstance(obj, (str, bytes, int, float, bool)):
+        return obj
+    if isinstance(obj, tuple):
+        items = [aligned_arrays(v, _depth + 1) for v in obj]
+        if all(a is b for a, b in zip(items, obj, strict=True)):
+            return obj
+        return type(obj)(*items) if hasattr(obj, "_fields") else tuple(items)
+    if isinstance(obj, list):
+        obj[:] = [aligned_arrays(v, _depth + 1) for v in obj]
+        return obj
+    if isinstance(obj, dict):
+        for key, value in obj.items():
+            new = aligned_arrays(value, _depth + 1)
+            if new is not value:
+                obj[key] = new
+        return obj
+    if hasattr(obj, "__dict__"):
+        for key, value in vars(obj).items():
+            new = aligned_arrays(value, _depth + 1)
+            if new is not value:
+                setattr(obj, key, new)
+    return obj
+
+
+def _batch_task(plan: TracePlan, start: int, stop: int) -> BatchResult:
+    """One Dask task: trace rays ``start:stop`` of the (scattered) plan, arrays realigned first."""
+    return trace_batch(aligned_arrays(plan), start, stop)
 
 
 class InOrderSum:
@@ -174,7 +215,7 @@ class DaskExecutor:
         tag = uuid.uuid4().hex[:12]
         plan_future = client.scatter(plan, broadcast=True, hash=False)
         futures = [
-            client.submit(on_worker, trace_batch, plan_future, a, b, numba_threads=self.numba_threads,
+            client.submit(on_worker, _batch_task, plan_future, a, b, numba_threads=self.numba_threads,
                           key=f"bentray-batch-{tag}-{a}-{b}", retries=self.retries, pure=False)
             for a, b in ranges
         ]
@@ -183,6 +224,7 @@ class DaskExecutor:
         try:
             for future, part in as_completed(futures, loop=client.loop, with_results=True):
                 future.release()  # the result is here now: let the worker free it
+                part = aligned_arrays(part)  # the field stage's kernels run on these arrays here
                 out.append(part)
                 fold.push(part)
                 if on_batch is not None:

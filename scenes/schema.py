@@ -59,9 +59,9 @@ MAX_DOMAIN_EXTENT_M = 1.0e6  # 1000 km: beyond any outdoor-acoustics scene; catc
 MIN_DOMAIN_EXTENT_M = 1.0e-3  # 1 mm: a thinner box cannot be meshed meaningfully
 BASELINE_CURVES = ("euler", "euler_adaptive", "rk4", "dopri5")
 # Rays per trace batch (the unit of progress, of scale-out tasks and of the field's summation order).
-# Measured (engine/bench/scaling_dask.py): a batch costs ~1 ms locally and ~5-10 ms on Dask beyond its rays
-# (+ ~0.2 s per 1e6 field points x 8 bands), rays cost 0.1-1 ms each: 10,000 rays keep that near 1 % while
-# a 100k-ray job still spreads over 10 tasks and a batch's sampled paths stay ~160 MB (50,000: 800 MB).
+# Measured (engine/bench/scaling_dask.py): a batch costs 1-2 ms locally and 5-27 ms on Dask beyond its rays
+# (+ ~0.2 s per 1e6 field points x 8 bands); 10,000 rays keep that under 1 % for rays of >= 0.3 ms while a
+# 100k-ray job still spreads over 10 tasks and a batch's sampled paths stay ~160 MB (50,000: 800 MB).
 DEFAULT_BATCH_RAYS = 10_000
 MAX_TOTAL_RAYS = 10_000_000  # sources x elevations x azimuths; keeps one job's arrays to a few GB
 MAX_SOURCES = 10_000
