@@ -95,3 +95,24 @@ def lsq_gradients(
     if fallback is not None and np.any(used_fallback):
         grads[used_fallback] = np.asarray(fallback, dtype=np.float64)[used_fallback]
     return grads, used_fallback
+
+
+def cell_media(points: np.ndarray, tets: np.ndarray, neighbours: np.ndarray, quantity_at,
+               gradient_method: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """Per-cell linear media of a tetrahedral mesh from the traced quantity at its vertices.
+
+    points (P, 3) metres; tets (T, 4); neighbours (T, 4) (negative: boundary); quantity_at: xyz (N, 3)
+    -> (N,). Returns (vertex values (P,), media_ref (T,) = P1 value at the centroid, centroids (T, 3),
+    gradient (T, 3), number of cells on the Green-Gauss fallback). gradient_method: "lsq", "lsq_unweighted" or
+    "green_gauss"; the Green-Gauss fallback is computed only for the cells that need it.
+    """
+    vertex_values = np.asarray(quantity_at(points), dtype=np.float64).reshape(-1)
+    if vertex_values.shape != (len(points),) or not np.all(np.isfinite(vertex_values)):
+        raise ValueError("quantity_at must return one finite value per point")
+    centroids = points[tets].mean(axis=1)
+    media_ref = vertex_values[tets].mean(axis=1)
+    if gradient_method == "green_gauss":
+        return vertex_values, media_ref, centroids, green_gauss_gradients(points, tets, vertex_values), 0
+    grad, fallback = lsq_gradients(centroids, media_ref, neighbours, weighted=gradient_method == "lsq")
+    grad[fallback] = green_gauss_gradients(points, tets[fallback], vertex_values)
+    return vertex_values, media_ref, centroids, grad, int(fallback.sum())

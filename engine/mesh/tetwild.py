@@ -46,7 +46,7 @@ from scipy.spatial import cKDTree
 from bentray.engine.constants import BOUNDARY_OPEN, BOUNDARY_REFLECT
 from bentray.engine.errors import MeshBuildError
 from bentray.engine.mesh.cells import CellMesh, locate_points
-from bentray.engine.mesh.gradients import green_gauss_gradients, lsq_gradients
+from bentray.engine.mesh.gradients import cell_media
 from bentray.engine.mesh.prisms import face_planes, face_vertices, match_faces
 from bentray.engine.mesh.tets import (
     DEGENERATE_VOL_REL,
@@ -318,17 +318,8 @@ def build_obstacle_tet_mesh(
     t2 = time.perf_counter()
 
     # --- media and gradients -------------------------------------------------------------------------------
-    vertex_values = np.asarray(quantity_at(points), dtype=np.float64).reshape(-1)
-    if vertex_values.shape != (len(points),) or not np.all(np.isfinite(vertex_values)):
-        raise ValueError("quantity_at must return one finite value per point")
-    centroids = points[tets].mean(axis=1)
-    media_ref = vertex_values[tets].mean(axis=1)
-    if gradient_method == "green_gauss":
-        grad, n_fallback = green_gauss_gradients(points, tets, vertex_values), 0
-    else:
-        grad, fallback = lsq_gradients(centroids, media_ref, neighbours, weighted=gradient_method == "lsq")
-        grad[fallback] = green_gauss_gradients(points, tets[fallback], vertex_values)
-        n_fallback = int(fallback.sum())
+    vertex_values, media_ref, centroids, grad, n_fallback = cell_media(
+        points, tets, neighbours, quantity_at, gradient_method)
     t3 = time.perf_counter()
 
     cells = CellMesh(
