@@ -24,8 +24,15 @@ NO_ROOT = math.inf
 def upcrossing_root(a: float, b: float, c: float) -> float:
     """Parameter of the unique upward zero crossing of ``a u^2 + b u + c`` (any sign), or +inf.
 
-    Tangent contacts (disc == 0) are not crossings and return +inf.
+    Tangent contacts (disc == 0) are not crossings and return +inf. A linear f (a == 0: a plane parallel
+    to the gradient, e.g. every side face of a horizontal slab) skips the square root: there -c / b is bit
+    for bit what the formula below gives (sqrt(b * b) == |b| exactly while b * b is a normal float).
     """
+    if a == 0.0 and math.isfinite(c) and abs(b) < 1e150:
+        if b > 1e-150:
+            return c / -b
+        if b < -1e-150:
+            return NO_ROOT
     disc = b * b - 4.0 * a * c
     if disc <= 0.0:
         return NO_ROOT

@@ -275,6 +275,7 @@ def trace_one(
     zero_run = 0
     slide_face = -1
     g_slide = np.empty(3)
+    g = np.empty(3)  # the gradient the current cell's curve is set up with
     prev_cell = -1
     pp_run = 0
     steps = 0
@@ -291,7 +292,8 @@ def trace_one(
             break
         steps += 1
         m0 = _media_at(media_ref, ref_point, gradient, cell, x)
-        g = gradient[cell]
+        for i in range(3):  # copied, not viewed: a view per step costs two atomic reference-count updates
+            g[i] = gradient[cell, i]
         if wind_on:
             # m0, g become the effective medium's traced quantity (exact, at x) and its gradient (at the
             # middle of the straight chord through the cell: the entry point's own gradient would make the
@@ -303,7 +305,8 @@ def trace_one(
             if _chord_middle(planes[cell], neighbours[cell], x, d, x_mid):
                 effective_quantity(curve, c_ref, _media_at(media_ref, ref_point, gradient, cell, x_mid), g,
                                    wind_code, wind_params, x_mid, e_wind, w_grad, g_eff)
-            g = g_eff
+            for i in range(3):
+                g[i] = g_eff[i]
         exclude = entry
         if slide_face >= 0:
             # slide along the face: the mean gradient of the two sides without its normal part
@@ -315,8 +318,7 @@ def trace_one(
             gm = (g_slide[0] * planes[cell, slide_face, 0] + g_slide[1] * planes[cell, slide_face, 1]
                   + g_slide[2] * planes[cell, slide_face, 2])
             for i in range(3):
-                g_slide[i] -= gm * planes[cell, slide_face, i]
-            g = g_slide
+                g[i] = g_slide[i] - gm * planes[cell, slide_face, i]
             exclude = slide_face
             slide_face = -1
         if not curves.setup(curve, m0, g, d, cs):
