@@ -29,6 +29,7 @@ __all__ = [
     "FieldDataValue",
     "nearest_index",
     "preview_slice_indices",
+    "terrain_following_slice",
     "write_field_vti",
     "write_preview_png",
 ]
@@ -211,6 +212,19 @@ def _panel(
     ax.grid(True, alpha=0.3)
 
 
+def terrain_following_slice(values: np.ndarray, origin: ArrayLike, spacing: ArrayLike, ground_z: np.ndarray,
+                            height: float) -> np.ndarray:
+    """(nx, ny) values at the z-node nearest ``ground_z[i, j] + height`` in each grid column (NaN where
+    that node is outside the grid). values (nx, ny, nz); origin, spacing (3,) metres; ground_z (nx, ny)."""
+    o = np.asarray(origin, dtype=np.float64)
+    s = np.asarray(spacing, dtype=np.float64)
+    nx, ny, nz = values.shape
+    kk = np.rint((np.asarray(ground_z, dtype=np.float64) + height - o[2]) / s[2]).astype(np.int64)
+    inside = (kk >= 0) & (kk < nz)
+    ii, jj = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
+    return np.where(inside, values[ii, jj, np.clip(kk, 0, nz - 1)], np.nan)
+
+
 def write_preview_png(
     path: str | Path,
     origin: ArrayLike,
@@ -223,6 +237,8 @@ def write_preview_png(
     title: str = "",
     label: str = "SPL (dB)",
     db_range: float | None = PREVIEW_DB_RANGE,
+    ground_z: ArrayLike | None = None,
+    receiver_height: float | None = None,
 ) -> Path:
     """Write a two-panel PNG preview of a field in dB, atomically.
 
@@ -240,6 +256,10 @@ def write_preview_png(
     receiver_z : height of the horizontal slice, metres.
     db_range : the colour scale spans [top - db_range, top], top the 99.5th percentile of the finite values
         shown (values above saturate); None: down to the smallest finite value.
+    ground_z, receiver_height : over terrain, the ground height (nx, ny) metres under each grid column
+        and the receiver height above it: the horizontal panel then follows the terrain (the node nearest
+        ground + receiver_height in each column; blank where that is outside the grid) and the vertical
+        panel draws the ground line.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.colors import Normalize
@@ -254,6 +274,10 @@ def write_preview_png(
     axes = [o[d] + s[d] * np.arange(shp[d]) for d in range(3)]
     horizontal = v[:, :, k]  # (nx, ny)
     vertical = v[:, j, :]  # (nx, nz)
+    ground = None
+    if ground_z is not None and receiver_height is not None:
+        ground = np.asarray(ground_z, dtype=np.float64).reshape(shp[0], shp[1])
+        horizontal = terrain_following_slice(v, o, s, ground, float(receiver_height))
     panels = []
     if not (shp[1] == 1 and shp[2] > 1):
         panels.append(("h", horizontal))
@@ -279,7 +303,8 @@ def write_preview_png(
         ax = fig.add_subplot(1, len(panels), n + 1)
         if kind == "h":
             _panel(fig, ax, axes[0], axes[1], data, "x (m)", "y (m)", norm, label)
-            ax.set_title(f"horizontal slice z = {axes[2][k]:.3g} m")
+            ax.set_title(f"{receiver_height:.3g} m above the ground" if ground is not None
+                         else f"horizontal slice z = {axes[2][k]:.3g} m")
             if shp[0] > 1 and shp[1] > 1:
                 ax.plot([src[0]], [src[1]], marker="*", color="red", markersize=10, linestyle="none")
         else:
@@ -287,7 +312,10 @@ def write_preview_png(
             ax.set_title(f"vertical slice y = {axes[1][j]:.3g} m")
             if shp[0] > 1 and shp[2] > 1:
                 ax.plot([src[0]], [src[2]], marker="*", color="red", markersize=10, linestyle="none")
-                ax.axhline(axes[2][k], color="white", linewidth=0.8, linestyle="--")
+                if ground is not None:
+                    ax.plot(axes[0], ground[:, j], color="black", linewidth=1.2)
+                else:
+                    ax.axhline(axes[2][k], color="white", linewidth=0.8, linestyle="--")
         if not finite.size:
             ax.text(0.5, 0.5, "no finite values", transform=ax.transAxes, ha="center", va="center")
     if title:

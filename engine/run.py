@@ -336,6 +336,16 @@ def run_job(job: Job, base_dir: Path | None = None, *, progress: ProgressFn | No
             "receiver_z": float(lo[2] + job.field.receiver_height_m),
             "title": f"{job.name}: {profile.kind} profile, {result.n_rays} rays",
         }
+        if surfaces is not None and surfaces.terrain is not None:
+            from bentray.engine.mesh.terrain import terrain_height_function
+
+            g = buffers.grid
+            gx = g.origin[0] + g.spacing[0] * np.arange(g.shape[0])
+            gy = g.origin[1] + g.spacing[1] * np.arange(g.shape[1])
+            xy = np.stack(np.meshgrid(gx, gy, indexing="ij"), axis=-1).reshape(-1, 2)
+            field_arrays.preview["ground_z"] = terrain_height_function(surfaces.terrain, lo, hi)(xy).reshape(
+                g.shape[0], g.shape[1])
+            field_arrays.preview["receiver_height_m"] = float(job.field.receiver_height_m)
         field_arrays.stats["fan_spacing"] = field_stage.fan_spacing_advice(
             job.field, np.array([src.position for src in job.sources]), job.rays.elevation_deg.values(),
             job.rays.azimuth_deg.values())

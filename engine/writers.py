@@ -285,7 +285,8 @@ def _write_preview(outcome: JobOutcome, path: Path) -> None:
     name, label = fa.preview_array()
     write_preview_png(path, fa.grid.origin, fa.grid.spacing, fa.grid.shape, fa.arrays[name],
                       source_xyz=fa.preview["source_xyz"], receiver_z=fa.preview["receiver_z"],
-                      title=fa.preview["title"], label=label)
+                      title=fa.preview["title"], label=label, ground_z=fa.preview.get("ground_z"),
+                      receiver_height=fa.preview.get("receiver_height_m"))
 
 
 def _planned_files(outcome: JobOutcome, outputs: list[str]) -> list[str]:

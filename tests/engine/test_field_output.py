@@ -142,3 +142,20 @@ def test_preview_png_panels_and_degenerate_grids(tmp_path: Path) -> None:
         write_preview_png(tmp_path / "bad.png", (0, 0, 0), (1, 1, 1), (5, 4, 3), np.zeros((5, 4)),
                           source_xyz=(0, 0, 0), receiver_z=0.0)  # fmt: skip
     assert not (tmp_path / "bad.png").exists()
+
+
+def test_terrain_following_slice_picks_the_node_above_the_ground(tmp_path):
+    from bentray.engine.field_output import terrain_following_slice, write_preview_png
+
+    # values = the node's own z, so the slice must return ground + height rounded to the grid
+    origin, spacing, shape = np.array([0.0, 0.0, 1.0]), np.array([10.0, 10.0, 2.0]), (4, 3, 20)
+    z = origin[2] + spacing[2] * np.arange(shape[2])
+    values = np.broadcast_to(z, shape).copy()
+    ground = np.array([[0.0, 3.0, 10.0], [20.0, 33.0, 50.0], [1.0, 1.0, 1.0], [7.9, 8.1, 36.0]])
+    got = terrain_following_slice(values, origin, spacing, ground, 4.0)
+    want = origin[2] + spacing[2] * np.rint((ground + 4.0 - origin[2]) / spacing[2])
+    want[want > z[-1]] = np.nan  # beyond the top node: blank
+    np.testing.assert_array_equal(got, want)
+    out = write_preview_png(tmp_path / "p.png", origin, spacing, shape, values, source_xyz=[5, 5, 3],
+                            receiver_z=5.0, ground_z=ground, receiver_height=4.0)
+    assert out.stat().st_size > 0
