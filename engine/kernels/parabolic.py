@@ -21,7 +21,7 @@ from bentray.engine.constants import NJIT_FLAGS, TIME_SOLVE_ITERS
 from bentray.engine.kernels.roots import log1p_over_x
 
 
-@nb.njit(**NJIT_FLAGS)
+@nb.njit(inline="always", **NJIT_FLAGS)
 def plane_coefficients(mx, my, mz, h, x0, p0, g):
     """Coefficients (A, B, C) of ``m.x(sigma) - h = A sigma^2 + B sigma + C``."""
     a = 0.25 * (mx * g[0] + my * g[1] + mz * g[2])
@@ -30,13 +30,13 @@ def plane_coefficients(mx, my, mz, h, x0, p0, g):
     return a, b, c
 
 
-@nb.njit(**NJIT_FLAGS)
+@nb.njit(inline="always", **NJIT_FLAGS)
 def travel_time(n0sq: float, gp0: float, gg: float, sigma: float, c_ref: float) -> float:
     """Exact travel time (s) after parameter sigma (the cubic of physics.md section 2)."""
     return sigma * (n0sq + sigma * (0.5 * gp0 + sigma * gg / 12.0)) / c_ref
 
 
-@nb.njit(**NJIT_FLAGS)
+@nb.njit(inline="always", **NJIT_FLAGS)
 def sigma_at_time(n0sq: float, gp0: float, gg: float, dt: float, sigma_hi: float, c_ref: float) -> float:
     """Solve t(sigma) = dt on [0, sigma_hi] (t is strictly increasing: dt/dsigma = n^2 / c_ref).
 
@@ -63,7 +63,7 @@ def sigma_at_time(n0sq: float, gp0: float, gg: float, dt: float, sigma_hi: float
     return s
 
 
-@nb.njit(**NJIT_FLAGS)
+@nb.njit(inline="always", **NJIT_FLAGS)
 def _plus_part(y: float, p: float, hh: float) -> float:
     """y + sqrt(y^2 + h^2) (= y + p) without cancellation when y < 0."""
     if y >= 0.0:
@@ -71,7 +71,7 @@ def _plus_part(y: float, p: float, hh: float) -> float:
     return hh / (p - y)
 
 
-@nb.njit(**NJIT_FLAGS)
+@nb.njit(inline="always", **NJIT_FLAGS)
 def arc_length(p0, g, sigma: float) -> float:
     """Closed-form arc length of the parabolic segment, integral_0^sigma |p0 + (g/2) u| du (metres).
 
@@ -110,7 +110,7 @@ def arc_length(p0, g, sigma: float) -> float:
     return term1 + term2
 
 
-@nb.njit(**NJIT_FLAGS)
+@nb.njit(inline="always", **NJIT_FLAGS)
 def state_at(x0, p0, g, sigma: float, x_out, t_out) -> None:
     """Position x(sigma) and unit tangent T(sigma) written into x_out, t_out (3,)."""
     px = p0[0] + 0.5 * g[0] * sigma

@@ -20,7 +20,7 @@ from bentray.engine.constants import NJIT_FLAGS
 NO_ROOT = math.inf
 
 
-@nb.njit(**NJIT_FLAGS)
+@nb.njit(inline="always", **NJIT_FLAGS)
 def upcrossing_root(a: float, b: float, c: float) -> float:
     """Parameter of the unique upward zero crossing of ``a u^2 + b u + c`` (any sign), or +inf.
 
@@ -46,7 +46,7 @@ def upcrossing_root(a: float, b: float, c: float) -> float:
     return q / a
 
 
-@nb.njit(**NJIT_FLAGS)
+@nb.njit(inline="always", **NJIT_FLAGS)
 def face_exit_parameter(a: float, b: float, c: float, is_entry: bool, on_face_tol: float) -> float:
     """Exit parameter through one face, or +inf when the curve does not leave through it.
 
@@ -67,7 +67,7 @@ def face_exit_parameter(a: float, b: float, c: float, is_entry: bool, on_face_to
     return NO_ROOT
 
 
-@nb.njit(**NJIT_FLAGS)
+@nb.njit(inline="always", **NJIT_FLAGS)
 def log1p_over_x(z: float) -> float:
     """log(1 + z) / z, exact limit 1 at z = 0 (z > -1)."""
     if abs(z) < 1e-4:
@@ -75,7 +75,7 @@ def log1p_over_x(z: float) -> float:
     return math.log1p(z) / z
 
 
-@nb.njit(**NJIT_FLAGS)
+@nb.njit(inline="always", **NJIT_FLAGS)
 def expm1_over_x(z: float) -> float:
     """(exp(z) - 1) / z, exact limit 1 at z = 0."""
     if abs(z) < 1e-4:
@@ -83,7 +83,7 @@ def expm1_over_x(z: float) -> float:
     return math.expm1(z) / z
 
 
-@nb.njit(**NJIT_FLAGS)
+@nb.njit(inline="always", **NJIT_FLAGS)
 def atan_over_x(z: float) -> float:
     """atan(z) / z, exact limit 1 at z = 0."""
     if abs(z) < 1e-4:
@@ -92,7 +92,7 @@ def atan_over_x(z: float) -> float:
     return math.atan(z) / z
 
 
-@nb.njit(**NJIT_FLAGS)
+@nb.njit(inline="always", **NJIT_FLAGS)
 def sinh_over_x(z: float) -> float:
     """sinh(z) / z, exact limit 1 at z = 0."""
     if abs(z) < 1e-4:
