@@ -116,3 +116,25 @@ def cell_media(points: np.ndarray, tets: np.ndarray, neighbours: np.ndarray, qua
     grad, fallback = lsq_gradients(centroids, media_ref, neighbours, weighted=gradient_method == "lsq")
     grad[fallback] = green_gauss_gradients(points, tets[fallback], vertex_values)
     return vertex_values, media_ref, centroids, grad, int(fallback.sum())
+
+
+def tet_cell_mesh(points: np.ndarray, tets: np.ndarray, planes: np.ndarray, neighbours: np.ndarray,
+                  neighbour_face: np.ndarray, longest: np.ndarray, face_material: np.ndarray, quantity_at,
+                  gradient_method: str):
+    """The kernels' CellMesh of a tetrahedral mesh whose geometry and boundary tags are built: per-cell
+    linear media from :func:`cell_media`. Returns (CellMesh, vertex values (P,), Green-Gauss fallbacks)."""
+    from bentray.engine.mesh.cells import CellMesh
+
+    vertex_values, media_ref, centroids, grad, n_fallback = cell_media(
+        points, tets, neighbours, quantity_at, gradient_method)
+    cells = CellMesh(
+        planes=np.ascontiguousarray(planes),
+        neighbours=np.ascontiguousarray(neighbours),
+        neighbour_face=np.ascontiguousarray(neighbour_face),
+        media_ref=np.ascontiguousarray(media_ref),
+        ref_point=np.ascontiguousarray(centroids),
+        gradient=np.ascontiguousarray(grad),
+        size=np.ascontiguousarray(longest),
+        face_material=face_material,
+    )
+    return cells, vertex_values, n_fallback

@@ -45,8 +45,8 @@ from scipy.spatial import cKDTree
 
 from bentray.engine.constants import BOUNDARY_OPEN, BOUNDARY_REFLECT
 from bentray.engine.errors import MeshBuildError
-from bentray.engine.mesh.cells import CellMesh, locate_points
-from bentray.engine.mesh.gradients import cell_media
+from bentray.engine.mesh.cells import locate_points
+from bentray.engine.mesh.gradients import tet_cell_mesh
 from bentray.engine.mesh.prisms import face_planes, face_vertices, match_faces
 from bentray.engine.mesh.tets import (
     DEGENERATE_VOL_REL,
@@ -318,20 +318,10 @@ def build_obstacle_tet_mesh(
     t2 = time.perf_counter()
 
     # --- media and gradients -------------------------------------------------------------------------------
-    vertex_values, media_ref, centroids, grad, n_fallback = cell_media(
-        points, tets, neighbours, quantity_at, gradient_method)
+    cells, vertex_values, n_fallback = tet_cell_mesh(points, tets, planes, neighbours, nbf, longest, face_material,
+                                                     quantity_at, gradient_method)
     t3 = time.perf_counter()
 
-    cells = CellMesh(
-        planes=np.ascontiguousarray(planes),
-        neighbours=np.ascontiguousarray(neighbours),
-        neighbour_face=np.ascontiguousarray(nbf),
-        media_ref=np.ascontiguousarray(media_ref),
-        ref_point=np.ascontiguousarray(centroids),
-        gradient=np.ascontiguousarray(grad),
-        size=np.ascontiguousarray(longest),
-        face_material=face_material,
-    )
     stats = {
         "n_points": int(len(points)),
         "n_cells": int(len(tets)),
