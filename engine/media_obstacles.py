@@ -79,7 +79,8 @@ def build_obstacle_media(
 
     tet = build_obstacle_tet_mesh(lo, hi, float(lo[2]), surfaces.obstacles, quantity_at=quantity_at,
                                   edge_length=edge, epsilon=DEFAULT_EPSILON, top=top,
-                                  gradient_method=solver.gradient)  # fmt: skip
+                                  gradient_method=solver.gradient,
+                                  materials=surfaces.obstacle_materials or None)  # fmt: skip
     mesh = tet.cells
     stats = dict(tet.stats)
     stats.update({

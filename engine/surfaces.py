@@ -79,4 +79,5 @@ class SceneSurfaces:
     terrain: HeightGrid | TriangleSurface | None = None
     footprints: list[Footprint] = field(default_factory=list)
     obstacles: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
+    obstacle_materials: list[int] = field(default_factory=list)  # material index per obstacle (empty: rigid)
     materials: list[Material] = field(default_factory=lambda: [Material("rigid", None)])

@@ -148,6 +148,7 @@ class ObstacleSpec(_Model):
     file: str = Field(min_length=1)
     format: Literal["obj", "stl", "ply"] | None = None
     name: str | None = Field(default=None, max_length=100)
+    material: str | None = None  # a name from scene.materials (default rigid)
 
 
 class BuildingsSpec(_Model):
@@ -195,11 +196,12 @@ def material_reference_errors(
     defined = ", ".join(names)
     if terrain is not None and terrain.material is not None and terrain.material not in names:
         errors.append((("terrain", "material"), f"material {terrain.material!r} is not defined ({defined})"))
-    for i, fp in enumerate(buildings.footprints if buildings is not None else []):
-        if fp.material is not None and fp.material not in names:
-            errors.append(
-                (("buildings", "footprints", i, "material"), f"material {fp.material!r} is not defined ({defined})")
-            )
+    for kind in ("footprints", "obstacles"):
+        for i, item in enumerate(getattr(buildings, kind) if buildings is not None else []):
+            if item.material is not None and item.material not in names:
+                errors.append(
+                    (("buildings", kind, i, "material"), f"material {item.material!r} is not defined ({defined})")
+                )
     return errors
 
 
@@ -330,6 +332,7 @@ def surfaces_from_specs(
                     f"{_fmt(vertices[np.argmax(outside)])}); the domain is {_fmt(dmin)} to {_fmt(dmax)}"
                 )
             surfaces.obstacles.append((vertices, faces))
+            surfaces.obstacle_materials.append(index[ob.material or RIGID])
     errors += _footprint_problems(labelled, surfaces.terrain, dmin, dmax)
     if errors:
         raise SceneSpecError("\n".join(errors))

@@ -52,3 +52,33 @@ def test_closed_obstacle_job_reflects_and_loses_nothing(tmp_path):
     dev = outcome.report["mesh"]["surface_deviation_m"]
     assert dev < 0.1
     np.testing.assert_allclose(tr.position, mirror, atol=2 * dev + 14.0 * dev / 5.0 + 1e-9)
+
+
+def test_obstacle_material_reaches_the_obstacle_faces(tmp_path):
+    from pydantic import ValidationError
+
+    from bentray.engine.constants import BOUNDARY_REFLECT
+    from bentray.engine.media_obstacles import build_obstacle_media
+    from bentray.engine.profiles import Homogeneous
+    from bentray.scenes.scene_models import surfaces_from_specs
+
+    box = trimesh.creation.box(extents=(10.0, 10.0, 10.0))
+    box.apply_translation((25.0, 0.0, 5.5))
+    box.export(tmp_path / "cube.stl")
+    scene = {"domain": {"min": [-10, -20, 0], "max": [40, 20, 20]},
+             "materials": [{"name": "hedge", "flow_resistivity": 50000}],
+             "buildings": {"obstacles": [{"file": "cube.stl", "material": "hedge"}]}}
+    base = {"name": "cube", "profile": {"kind": "homogeneous"}, "sources": [{"position": [0.0, 0.0, 4.0]}],
+            "rays": {"elevation_deg": {"min": 0, "max": 0, "count": 1}, "max_time_s": 0.1, "max_reflections": 1}}
+    job = Job.model_validate({**base, "scene": scene})
+    surfaces = surfaces_from_specs(job.scene.terrain, job.scene.buildings, job.scene.materials, tmp_path,
+                                   job.scene.box, prefix="scene")
+    assert surfaces.obstacle_materials == [1]  # 0 is rigid, 1 the first scene material
+    media = build_obstacle_media(Homogeneous(), "parabolic", job.solver, [-10, -20, 0], [40, 20, 20], surfaces)
+    m = media.mesh
+    reflecting = m.neighbours == BOUNDARY_REFLECT
+    mats = set(np.unique(m.face_material[reflecting]).tolist())
+    assert mats == {0, 1}  # the ground stays rigid, the cube's faces carry the hedge
+    bad = {**scene, "buildings": {"obstacles": [{"file": "cube.stl", "material": "glass"}]}}
+    with pytest.raises(ValidationError, match="'glass' is not defined"):
+        Job.model_validate({**base, "scene": bad})
