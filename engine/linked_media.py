@@ -13,7 +13,7 @@ from bentray.engine.constants import CURVE_CODES
 from bentray.engine.kernels.traverse_linked import trace_linked_rays
 from bentray.engine.mesh.linked import LinkedMesh
 from bentray.engine.result import TraceResult, gather_paths, kernel_trace_result
-from bentray.engine.tracer import path_capacity
+from bentray.engine.tracer import path_capacity, ray_inputs
 
 __all__ = ["trace_linked"]
 
@@ -40,16 +40,8 @@ def trace_linked(
     surface_tests : optional (n,) int64 output: ray-triangle tests made by each ray.
     Returns a TraceResult (launch angles NaN; reflection_cos / reflection_material None).
     """
-    if curve not in CURVE_CODES:
-        raise ValueError(f"unknown curve {curve!r}; expected one of {sorted(CURVE_CODES)}")
-    origins = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3)
-    directions = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
-    start_cells = np.ascontiguousarray(start_cells, dtype=np.int64).reshape(-1)
+    origins, directions, start_cells = ray_inputs(curve, origins, directions, start_cells, max_time_s)
     n = origins.shape[0]
-    if directions.shape[0] != n or start_cells.shape[0] != n:
-        raise ValueError("origins, directions and start_cells must have the same length")
-    if not (max_time_s > 0.0):
-        raise ValueError("max_time_s must be positive")
     if surface_tests is not None and surface_tests.shape != (n,):
         raise ValueError("surface_tests must have shape (n,)")
     record = path_samples > 0

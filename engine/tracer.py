@@ -18,6 +18,23 @@ def path_capacity(path_samples: int, max_reflections: int) -> int:
     return 2 * int(path_samples) + min(int(max_reflections), 10_000) + 8
 
 
+def ray_inputs(curve: str, origins: np.ndarray, directions: np.ndarray, start_cells: np.ndarray,
+               max_time_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Checked, C-contiguous (n, 3) float64 origins and directions and (n,) int64 start cells for a
+    traversal kernel; ValueError for an unknown curve, mismatched lengths or a non-positive time."""
+    if curve not in CURVE_CODES:
+        raise ValueError(f"unknown curve {curve!r}; expected one of {sorted(CURVE_CODES)}")
+    origins = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3)
+    directions = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
+    start_cells = np.ascontiguousarray(start_cells, dtype=np.int64).reshape(-1)
+    n = origins.shape[0]
+    if directions.shape[0] != n or start_cells.shape[0] != n:
+        raise ValueError("origins, directions and start_cells must have the same length")
+    if not (max_time_s > 0.0):
+        raise ValueError("max_time_s must be positive")
+    return origins, directions, start_cells
+
+
 def trace(
     mesh: CellMesh,
     curve: str,
@@ -45,17 +62,9 @@ def trace(
         azimuth (physics.md section 7); ``mesh`` carries c alone (no per-cell wind arrays).
     Returns a TraceResult with launch angles left at NaN (the caller fills them in).
     """
-    if curve not in CURVE_CODES:
-        raise ValueError(f"unknown curve {curve!r}; expected one of {sorted(CURVE_CODES)}")
+    origins, directions, start_cells = ray_inputs(curve, origins, directions, start_cells, max_time_s)
     wind_code, wind_params = check_wind(wind)
-    origins = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3)
-    directions = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
-    start_cells = np.ascontiguousarray(start_cells, dtype=np.int64).reshape(-1)
     n = origins.shape[0]
-    if directions.shape[0] != n or start_cells.shape[0] != n:
-        raise ValueError("origins, directions and start_cells must have the same length")
-    if not (max_time_s > 0.0):
-        raise ValueError("max_time_s must be positive")
     record = path_samples > 0
     cap = path_capacity(path_samples, max_reflections) if record else 1
     n_slots = n * cap if record else 1

@@ -98,6 +98,18 @@ def time_batches(executor: Any, plan: TracePlan, batch_rays: int, repeats: int, 
     return float(best)
 
 
+def _overhead_rows(table: Any, executor: Any, label: str, grid: str, plan: TracePlan, sizes: list[int],
+                   repeats: int) -> float:
+    """Time OVERHEAD_RAYS rays in batches of each size, add the rows to ``table``; the fitted s per batch."""
+    times = [time_batches(executor, plan, b, repeats, OVERHEAD_RAYS) for b in sizes]
+    counts = [-(-OVERHEAD_RAYS // b) for b in sizes]
+    t0, slope = _fit_overhead(counts, times)
+    for b, n, t in zip(sizes, counts, times, strict=True):
+        table.add(grid=grid, executor=label, batch_rays=b, batches=n, trace_s=t,
+                  ms_per_batch_fit=1e3 * slope, us_per_ray_fit=1e6 * t0 / OVERHEAD_RAYS)
+    return slope
+
+
 def _fit_overhead(n_batches: list[int], seconds: list[float]) -> tuple[float, float]:
     """Least-squares T = T0 + n * overhead: (T0, overhead) in seconds."""
     a = np.column_stack([np.ones(len(n_batches)), np.asarray(n_batches, float)])
@@ -138,12 +150,7 @@ def run(quick: bool = False, progress: Callable[[str], None] | None = None) -> S
                         speedup=base[grid] / t, rays_per_s=n_rays / t)
             say(f"{grid}: local {threads} thread(s) {t:.3f} s")
         numba.set_num_threads(1)
-        times = [time_batches(local, plan, b, repeats, OVERHEAD_RAYS) for b in sizes]
-        counts = [-(-OVERHEAD_RAYS // b) for b in sizes]
-        t0, slope = _fit_overhead(counts, times)
-        for b, n, t in zip(sizes, counts, times, strict=True):
-            overhead.add(grid=grid, executor="local, 1 thread", batch_rays=b, batches=n, trace_s=t,
-                         ms_per_batch_fit=1e3 * slope, us_per_ray_fit=1e6 * t0 / OVERHEAD_RAYS)
+        slope = _overhead_rows(overhead, local, "local, 1 thread", grid, plan, sizes, repeats)
         say(f"{grid}: local overhead {1e3 * slope:.2f} ms/batch")
     for workers in (1, 2):
         with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
@@ -156,12 +163,7 @@ def run(quick: bool = False, progress: Callable[[str], None] | None = None) -> S
                             speedup=base[grid] / t, rays_per_s=n_rays / t)
                 say(f"{grid}: dask {workers} worker(s) {t:.3f} s")
                 if workers == 2:
-                    times = [time_batches(executor, plan, b, repeats, OVERHEAD_RAYS) for b in sizes]
-                    counts = [-(-OVERHEAD_RAYS // b) for b in sizes]
-                    t0, slope = _fit_overhead(counts, times)
-                    for b, n, t in zip(sizes, counts, times, strict=True):
-                        overhead.add(grid=grid, executor="dask, 2 workers", batch_rays=b, batches=n, trace_s=t,
-                                     ms_per_batch_fit=1e3 * slope, us_per_ray_fit=1e6 * t0 / OVERHEAD_RAYS)
+                    slope = _overhead_rows(overhead, executor, "dask, 2 workers", grid, plan, sizes, repeats)
                     say(f"{grid}: dask overhead {1e3 * slope:.2f} ms/batch")
     section = Section("scaling_dask", "Dask scale-out: strong scaling and overhead per batch",
                       tables=[scaling, overhead])

@@ -167,6 +167,34 @@ def _walk(planes, neighbours, cell, x):
 
 
 @nb.njit(**NJIT_FLAGS)
+def _nudge(planes, neighbours, cell, x, d, eta):
+    """Move x by eta metres along d and re-locate it by walking: (cell, status) with status RUNNING,
+    EXITED (beyond an open boundary) or LOST (the walk did not converge)."""
+    for i in range(3):
+        x[i] += eta * d[i]
+    cell, outcome = _walk(planes, neighbours, cell, x)
+    if outcome == 1:
+        return cell, STATUS_EXITED
+    if outcome == 3:
+        return cell, STATUS_LOST
+    return cell, STATUS_RUNNING
+
+
+@nb.njit(**NJIT_FLAGS)
+def _onto_face(plane, x, d, move_x):
+    """Project d (renormalised) and, if move_x, x onto the plane (m, h): the start of a slide."""
+    dm = d[0] * plane[0] + d[1] * plane[1] + d[2] * plane[2]
+    dist = plane[0] * x[0] + plane[1] * x[1] + plane[2] * x[2] - plane[3]
+    for i in range(3):
+        if move_x:
+            x[i] -= dist * plane[i]
+        d[i] -= dm * plane[i]
+    norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    for i in range(3):
+        d[i] /= norm
+
+
+@nb.njit(**NJIT_FLAGS)
 def _emit(path_pts, path_t, path_s, base, cap, count, x, t, s):
     if count < cap:
         k = base + count
@@ -342,28 +370,14 @@ def trace_one(
                 break
             tf = _tangent_face(planes[cell], neighbours[cell], x, d, size[cell])
             if tf >= 0:
-                dist = planes[cell, tf, 0] * x[0] + planes[cell, tf, 1] * x[1] + planes[cell, tf, 2] * x[2]
-                dist -= planes[cell, tf, 3]
-                dm = d[0] * planes[cell, tf, 0] + d[1] * planes[cell, tf, 1] + d[2] * planes[cell, tf, 2]
-                for i in range(3):
-                    x[i] -= dist * planes[cell, tf, i]
-                    d[i] -= dm * planes[cell, tf, i]
-                norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-                for i in range(3):
-                    d[i] /= norm
+                _onto_face(planes[cell, tf], x, d, True)
                 slide_face = tf
                 continue
             eta = NUDGE_REL * cell_size
-            for i in range(3):
-                x[i] += eta * d[i]
             t += eta * curves.slowness(curve, m0, c_ref)
             s += eta
-            cell, outcome = _walk(planes, neighbours, cell, x)
+            cell, status = _nudge(planes, neighbours, cell, x, d, eta)
             entry = -1
-            if outcome == 1:
-                status = STATUS_EXITED
-            elif outcome == 3:
-                status = STATUS_LOST
             continue
         dt = curves.time_at(curve, cs, param, c_ref)
         if not (dt >= 0.0):
@@ -424,11 +438,7 @@ def trace_one(
                 pp_run = 0
             if pp_run >= PINGPONG_SLIDE:
                 # zig-zagging across this face: slide along it in the current cell
-                for i in range(3):
-                    d[i] -= dm * planes[cell, face, i]
-                norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-                for i in range(3):
-                    d[i] /= norm
+                _onto_face(planes[cell, face], x, d, False)
                 slide_face = face
                 pp_run = 0
                 nudges += 1

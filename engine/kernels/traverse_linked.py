@@ -42,7 +42,7 @@ from bentray.engine.constants import (
     STATUS_TIME_LIMIT,
 )
 from bentray.engine.kernels import curves
-from bentray.engine.kernels.traverse import MAX_ZERO_STEPS, _emit, _emit_segment, _media_at, _walk
+from bentray.engine.kernels.traverse import MAX_ZERO_STEPS, _emit, _emit_segment, _media_at, _nudge
 
 # Barycentric slack of the point-in-triangle test (relative to the triangle's edges): 1e-9 of a 30 m
 # triangle is 30 nm. A ray through a shared edge is accepted by both triangles (no leak through the
@@ -150,16 +150,10 @@ def trace_linked_one(
                 status = STATUS_LOST
                 break
             eta = NUDGE_REL * cell_size
-            for i in range(3):
-                x[i] += eta * d[i]
             t += eta * curves.slowness(curve, m0, c_ref)
             s += eta
-            cell, outcome = _walk(planes, neighbours, cell, x)
+            cell, status = _nudge(planes, neighbours, cell, x, d, eta)
             entry = -1
-            if outcome == 1:
-                status = STATUS_EXITED
-            elif outcome == 3:
-                status = STATUS_LOST
             continue
         dt = curves.time_at(curve, cs, param, c_ref)
         if not (dt >= 0.0):
