@@ -47,11 +47,17 @@ def test_closed_obstacle_job_reflects_and_loses_nothing(tmp_path):
     az = np.radians(tr.azimuth_deg)
     unfolded = 34.0 * np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
     mirror = np.column_stack([40.0 - unfolded[:, 0], unfolded[:, 1], 4.0 + unfolded[:, 2]])
-    # fTetWild moves the face by up to the measured deviation and tilts it by about deviation / 10 m:
-    # allow twice the deviation plus that tilt over the 14 m back
+    # fTetWild re-triangulates the face into triangles of about the ideal edge length L, each within the
+    # measured deviation dev of the plane: the hit point moves by up to dev (2 dev after the mirror) and a
+    # triangle can tilt by up to 2 dev / L, which over the 14 m back moves the ray by 14 * 2 dev / L. The
+    # mesh differs from run to run (fTetWild is not reproducible), so the bound is the per-triangle one
+    # (an earlier whole-face bound, dev / 5, was too tight in principle; this test failed once in 20 runs,
+    # assertion not captured, and did not fail again in 14 runs).
     dev = outcome.report["mesh"]["surface_deviation_m"]
-    assert dev < 0.1
-    np.testing.assert_allclose(tr.position, mirror, atol=2 * dev + 14.0 * dev / 5.0 + 1e-9)
+    edge = outcome.report["mesh"]["edge_length_m"]
+    assert dev < 0.1 and 0 < edge <= 3.0
+    np.testing.assert_allclose(tr.position, mirror, atol=2 * dev + 14.0 * 2 * dev / edge + 1e-9,
+                               err_msg=f"surface deviation {dev} m, edge length {edge} m")
 
 
 def test_obstacle_material_reaches_the_obstacle_faces(tmp_path):
