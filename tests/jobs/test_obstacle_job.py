@@ -51,8 +51,8 @@ def test_closed_obstacle_job_reflects_and_loses_nothing(tmp_path):
     # measured deviation dev of the plane: the hit point moves by up to dev (2 dev after the mirror) and a
     # triangle can tilt by up to 2 dev / L, which over the 14 m back moves the ray by 14 * 2 dev / L. The
     # mesh differs from run to run (fTetWild is not reproducible), so the bound is the per-triangle one
-    # (an earlier whole-face bound, dev / 5, was too tight in principle; this test failed once in 20 runs,
-    # assertion not captured, and did not fail again in 14 runs).
+    # (an earlier whole-face bound, dev / 5, was too tight in principle; the test failed once in a full-suite
+    # run, assertion not captured, and passed in the 18 runs after it).
     dev = outcome.report["mesh"]["surface_deviation_m"]
     edge = outcome.report["mesh"]["edge_length_m"]
     assert dev < 0.1 and 0 < edge <= 3.0
