@@ -121,9 +121,13 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     p.add_argument("job", help="job file (JSON, see scenes/examples/)")
     p.add_argument("--out", required=True, help="output directory (created; files replaced all-or-nothing)")
     p.add_argument("--threads", type=_positive_int, default=None, help="numba threads (default: all)")
-    p.add_argument("--dask", metavar="ADDR", default=None,
-                   help="run the ray batches on this Dask scheduler, e.g. tcp://host:8786 "
-                        "(default: BENTRAY_DASK_SCHEDULER, else this process)")
+    p.add_argument(
+        "--dask",
+        metavar="ADDR",
+        default=None,
+        help="run the ray batches on this Dask scheduler, e.g. tcp://host:8786 "
+        "(default: BENTRAY_DASK_SCHEDULER, else this process)",
+    )
     p.set_defaults(func=cmd_run)
 
 
@@ -138,8 +142,9 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from bentray.engine.bench.runner import run_bench_sections
 
     t0 = time.perf_counter()
-    outcome = run_bench_sections(out_dir, quick=args.quick, only=args.only,
-                                 progress=lambda line: print("  " + line, flush=True))
+    outcome = run_bench_sections(
+        out_dir, quick=args.quick, only=args.only, progress=lambda line: print("  " + line, flush=True)
+    )
     print(f"bench: wrote {outcome.report} in {time.perf_counter() - t0:.1f} s")
     if outcome.failed:
         raise CommandError(f"section(s) failed: {', '.join(outcome.failed)} (see {outcome.report})")
@@ -149,12 +154,20 @@ def cmd_bench(args: argparse.Namespace) -> int:
 def _add_bench(sub: argparse._SubParsersAction) -> None:
     from bentray.engine.bench.runner import SECTIONS
 
-    p = sub.add_parser("bench", help="benchmark accuracy and speed; write report.md, CSVs and PNGs",
-                       description="Run the benchmark sections and write report.md, CSV tables and PNG plots.")
+    p = sub.add_parser(
+        "bench",
+        help="benchmark accuracy and speed; write report.md, CSVs and PNGs",
+        description="Run the benchmark sections and write report.md, CSV tables and PNG plots.",
+    )
     p.add_argument("--out", required=True, help="output directory (created; files in it are replaced)")
     p.add_argument("--quick", action="store_true", help="smoke run: fewer rays, settings and repeats (~2 min)")
-    p.add_argument("--only", nargs="+", choices=list(SECTIONS), metavar="NAME",
-                   help=f"run only these sections: {', '.join(SECTIONS)}")
+    p.add_argument(
+        "--only",
+        nargs="+",
+        choices=list(SECTIONS),
+        metavar="NAME",
+        help=f"run only these sections: {', '.join(SECTIONS)}",
+    )
     p.set_defaults(func=cmd_bench)
 
 
@@ -193,13 +206,20 @@ def cmd_scenes(args: argparse.Namespace) -> int:
 def _add_scenes(sub: argparse._SubParsersAction) -> None:
     from bentray.scenes.library.registry import BUILTIN_SCENES, RESOLUTIONS
 
-    p = sub.add_parser("scenes", help="list the built-in scenes with their stats",
-                       description="List the built-in scenes (scene.builtin) with their size, surface "
-                                   "triangles, buildings, sources and default profile.")
+    p = sub.add_parser(
+        "scenes",
+        help="list the built-in scenes with their stats",
+        description="List the built-in scenes (scene.builtin) with their size, surface "
+        "triangles, buildings, sources and default profile.",
+    )
     p.add_argument("--resolution", choices=list(RESOLUTIONS), default="medium")
     p.add_argument("--json", action="store_true", help="print the table as JSON")
-    p.add_argument("--job", choices=list(BUILTIN_SCENES), metavar="NAME",
-                   help="print a ready-to-run job file for this scene (10,000 rays, 3 reflections) instead")
+    p.add_argument(
+        "--job",
+        choices=list(BUILTIN_SCENES),
+        metavar="NAME",
+        help="print a ready-to-run job file for this scene (10,000 rays, 3 reflections) instead",
+    )
     p.set_defaults(func=cmd_scenes)
 
 

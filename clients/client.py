@@ -93,11 +93,17 @@ def text_progress_bar(stream: IO[str] | None = None, width: int = 30) -> Callabl
 class BentrayClient:
     """Client of one service. ``api_key``: a bearer key (None for a local single-user server)."""
 
-    def __init__(self, base_url: str = DEFAULT_URL, api_key: str | None = None, timeout_s: float = 60.0,
-                 transport: httpx.BaseTransport | None = None) -> None:
+    def __init__(
+        self,
+        base_url: str = DEFAULT_URL,
+        api_key: str | None = None,
+        timeout_s: float = 60.0,
+        transport: httpx.BaseTransport | None = None,
+    ) -> None:
         headers = {"Authorization": f"Bearer {api_key}"} if api_key else {}
-        self._http = httpx.Client(base_url=base_url.rstrip("/"), headers=headers, timeout=timeout_s,
-                                  transport=transport)
+        self._http = httpx.Client(
+            base_url=base_url.rstrip("/"), headers=headers, timeout=timeout_s, transport=transport
+        )
 
     def __enter__(self) -> BentrayClient:
         return self
@@ -133,8 +139,12 @@ class BentrayClient:
         return [AssetInfo.model_validate(a) for a in self._request("GET", "/v1/assets").json()]
 
     # -- jobs ----------------------------------------------------------------------------------
-    def submit(self, job: str | Path | dict[str, Any], files: Iterable[str | Path] | None = None,
-               base_dir: str | Path | None = None) -> JobInfo:
+    def submit(
+        self,
+        job: str | Path | dict[str, Any],
+        files: Iterable[str | Path] | None = None,
+        base_dir: str | Path | None = None,
+    ) -> JobInfo:
         """Queue a job: a job file path, or a job dict. Input files it names (terrain, buildings, obstacles,
         grid) are uploaded with it when they exist under ``base_dir`` (default: the job file's folder);
         other names must be assets already uploaded. ``files`` adds explicit files."""
@@ -154,13 +164,15 @@ class BentrayClient:
             given = {p.name for p in paths}
             paths += [folder / n for n in names if (folder / n).is_file() and Path(n).name not in given]
         if not paths:
-            response = self._request("POST", "/v1/jobs", content=text.encode("utf-8"),
-                                     headers={"Content-Type": "application/json"})
+            response = self._request(
+                "POST", "/v1/jobs", content=text.encode("utf-8"), headers={"Content-Type": "application/json"}
+            )
             return JobInfo.model_validate(response.json())
         handles = [open(p, "rb") for p in paths]
         try:
-            parts: list[tuple[str, tuple[str, Any]]] = [("files", (p.name, fh)) for p, fh in zip(paths, handles,
-                                                                                                  strict=True)]
+            parts: list[tuple[str, tuple[str, Any]]] = [
+                ("files", (p.name, fh)) for p, fh in zip(paths, handles, strict=True)
+            ]
             parts.insert(0, ("job", ("job.json", text.encode("utf-8"))))
             response = self._request("POST", "/v1/jobs", files=parts)
         finally:
@@ -184,8 +196,13 @@ class BentrayClient:
 
     delete = cancel
 
-    def wait(self, job_id: str, progress: Callable[[JobInfo], None] | bool | None = None, poll_s: float = 0.5,
-             timeout_s: float | None = None) -> JobInfo:
+    def wait(
+        self,
+        job_id: str,
+        progress: Callable[[JobInfo], None] | bool | None = None,
+        poll_s: float = 0.5,
+        timeout_s: float | None = None,
+    ) -> JobInfo:
         """Poll until the job finished; ``progress`` is called with each state (True: a text bar on stderr).
 
         Returns the final state (check ``status``: succeeded, failed with ``error``, or cancelled).

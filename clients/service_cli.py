@@ -27,8 +27,12 @@ def _error(exc: Exception, code: int | None = None) -> Exception:
     from bentray.clients.client import ServiceError
 
     if isinstance(exc, ServiceError):
-        return CommandError(f"{exc.detail} (HTTP {exc.status})" if exc.status != 422 else
-                            f"the service rejected the job:\n{exc.detail}", code=2 if exc.status == 422 else 1)
+        return CommandError(
+            f"{exc.detail} (HTTP {exc.status})"
+            if exc.status != 422
+            else f"the service rejected the job:\n{exc.detail}",
+            code=2 if exc.status == 422 else 1,
+        )
     return CommandError(f"cannot reach the service: {exc}", code=code or 1)
 
 
@@ -125,8 +129,12 @@ def cmd_fetch(args: argparse.Namespace) -> int:
 def cmd_cancel(args: argparse.Namespace) -> int:
     def run(client):
         info = client.cancel(args.id)
-        print(f"{args.id} deleted" if info is None else f"{args.id} {info.status}"
-              + (" (cancelling)" if info is not None and info.cancel_requested and not info.finished else ""))
+        print(
+            f"{args.id} deleted"
+            if info is None
+            else f"{args.id} {info.status}"
+            + (" (cancelling)" if info is not None and info.cancel_requested and not info.finished else "")
+        )
         return 0
 
     return _call(args, run)
@@ -134,15 +142,22 @@ def cmd_cancel(args: argparse.Namespace) -> int:
 
 # ---------------------------------------------------------------------------------------------
 def _client_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--url", default=os.environ.get("BENTRAY_URL", "http://127.0.0.1:8000"),
-                   help="service address (default $BENTRAY_URL or http://127.0.0.1:8000)")
-    p.add_argument("--key", default=os.environ.get("BENTRAY_API_KEY") or None,
-                   help="API key (default $BENTRAY_API_KEY)")
+    p.add_argument(
+        "--url",
+        default=os.environ.get("BENTRAY_URL", "http://127.0.0.1:8000"),
+        help="service address (default $BENTRAY_URL or http://127.0.0.1:8000)",
+    )
+    p.add_argument(
+        "--key", default=os.environ.get("BENTRAY_API_KEY") or None, help="API key (default $BENTRAY_API_KEY)"
+    )
 
 
 def _add_serve(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("serve", help="run the HTTP service (API and job processes)",
-                       description="Run the HTTP service; settings from BENTRAY_* variables (see service/settings.py).")
+    p = sub.add_parser(
+        "serve",
+        help="run the HTTP service (API and job processes)",
+        description="Run the HTTP service; settings from BENTRAY_* variables (see service/settings.py).",
+    )
     p.add_argument("--host", default="127.0.0.1", help="bind address (non-loopback needs API keys)")
     p.add_argument("--port", type=int, default=8000)
     p.add_argument("--workers", type=int, default=None, help="concurrent job processes (0: API only)")
@@ -152,8 +167,11 @@ def _add_serve(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_submit(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("submit", help="submit a job file to the service",
-                       description="Submit a job; files it names beside it are uploaded with it.")
+    p = sub.add_parser(
+        "submit",
+        help="submit a job file to the service",
+        description="Submit a job; files it names beside it are uploaded with it.",
+    )
     p.add_argument("job", help="job file (JSON)")
     p.add_argument("--file", action="append", default=[], help="extra input file to upload (repeatable)")
     p.add_argument("--wait", action="store_true", help="wait for the job, showing progress")

@@ -127,8 +127,15 @@ def _run_one(spec: dict[str, Any], base_dir: str | None) -> Any:
     return outcome
 
 
-def run_sweep(job_path: Path, param: str, values: list[tuple[str, Any]], out_dir: Path, *,
-              dask: str | None = None, progress: Callable[[str], None] | None = None) -> list[SweepRow]:
+def run_sweep(
+    job_path: Path,
+    param: str,
+    values: list[tuple[str, Any]],
+    out_dir: Path,
+    *,
+    dask: str | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> list[SweepRow]:
     """Run the sweep, write every job's outputs and ``out_dir/sweep.csv``; rows in ``values`` order.
 
     dask: scheduler address (or a ``distributed.Client``); None runs the jobs here one after another.
@@ -159,8 +166,16 @@ def run_sweep(job_path: Path, param: str, values: list[tuple[str, Any]], out_dir
         write_outcome(outcome, outputs, target)
         name, mean = field_summary(outcome)
         timings = outcome.report.get("timings_s", {})
-        rows[label] = SweepRow(label, value, target, outcome.trace.status_counts(), float(timings.get("trace", 0.0)),
-                               float(timings.get("job_wall", 0.0)), name, mean)
+        rows[label] = SweepRow(
+            label,
+            value,
+            target,
+            outcome.trace.status_counts(),
+            float(timings.get("trace", 0.0)),
+            float(timings.get("job_wall", 0.0)),
+            name,
+            mean,
+        )
         say(f"{param}={label}: {outcome.trace.n_rays} rays, trace {rows[label].trace_s:.2f} s -> {target}")
 
     if dask is None:
@@ -173,8 +188,12 @@ def run_sweep(job_path: Path, param: str, values: list[tuple[str, Any]], out_dir
 
         client = DaskExecutor(dask).client
         tag = uuid.uuid4().hex[:12]
-        futures = [client.submit(on_worker, _run_one, spec, base_dir, key=f"bentray-sweep-{tag}-{i}",
-                                 retries=DEFAULT_RETRIES, pure=False) for i, (_, _, spec, _) in enumerate(specs)]
+        futures = [
+            client.submit(
+                on_worker, _run_one, spec, base_dir, key=f"bentray-sweep-{tag}-{i}", retries=DEFAULT_RETRIES, pure=False
+            )
+            for i, (_, _, spec, _) in enumerate(specs)
+        ]
         index = {f.key: i for i, f in enumerate(futures)}
         try:
             for fut, outcome in as_completed(futures, loop=client.loop, with_results=True):
@@ -192,12 +211,33 @@ def write_sweep_csv(param: str, rows: list[SweepRow], path: Path) -> None:
     statuses = list(rows[0].rays) if rows else []
     with open(path, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
-        w.writerow(["param", "value", "dir", "rays_total", *[f"rays_{s}" for s in statuses], "trace_s", "wall_s",
-                    "field_array", "field_mean_db"])
+        w.writerow(
+            [
+                "param",
+                "value",
+                "dir",
+                "rays_total",
+                *[f"rays_{s}" for s in statuses],
+                "trace_s",
+                "wall_s",
+                "field_array",
+                "field_mean_db",
+            ]
+        )
         for r in rows:
-            w.writerow([param, r.label, r.out_dir.name, sum(r.rays.values()), *[r.rays.get(s, 0) for s in statuses],
-                        f"{r.trace_s:.6f}", f"{r.wall_s:.6f}", r.field_array,
-                        "" if math.isnan(r.field_mean) else f"{r.field_mean:.6f}"])
+            w.writerow(
+                [
+                    param,
+                    r.label,
+                    r.out_dir.name,
+                    sum(r.rays.values()),
+                    *[r.rays.get(s, 0) for s in statuses],
+                    f"{r.trace_s:.6f}",
+                    f"{r.wall_s:.6f}",
+                    r.field_array,
+                    "" if math.isnan(r.field_mean) else f"{r.field_mean:.6f}",
+                ]
+            )
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
@@ -213,26 +253,41 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     dask = args.dask or os.environ.get("BENTRAY_DASK_SCHEDULER", "").strip() or None
     t0 = time.perf_counter()
     try:
-        rows = run_sweep(job_path, args.param, parse_values(args.values), out_dir, dask=dask,
-                         progress=lambda line: print("  " + line, flush=True))
+        rows = run_sweep(
+            job_path,
+            args.param,
+            parse_values(args.values),
+            out_dir,
+            dask=dask,
+            progress=lambda line: print("  " + line, flush=True),
+        )
     except SweepError as exc:
         raise CommandError(str(exc), code=2) from None
     where = f"Dask scheduler {dask}" if dask else "this process"
-    print(f"sweep {args.param}: {len(rows)} jobs on {where} in {time.perf_counter() - t0:.2f} s; "
-          f"wrote {out_dir / 'sweep.csv'}")
+    print(
+        f"sweep {args.param}: {len(rows)} jobs on {where} in {time.perf_counter() - t0:.2f} s; "
+        f"wrote {out_dir / 'sweep.csv'}"
+    )
     return 0
 
 
 def add_sweep(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("sweep", help="run one job per value of a parameter; write DIR/<param>=<value>/ and sweep.csv",
-                       description="Run a job once per value of one parameter (a dotted path into the job JSON).")
+    p = sub.add_parser(
+        "sweep",
+        help="run one job per value of a parameter; write DIR/<param>=<value>/ and sweep.csv",
+        description="Run a job once per value of one parameter (a dotted path into the job JSON).",
+    )
     # values such as "-1,-0.5,0" start with '-': accept them as values, not as unknown options
     p._negative_number_matcher = re.compile(r"^-\.?\d")
     p.add_argument("job", help="job file (JSON)")
     p.add_argument("--param", required=True, help="dotted path into the job JSON, e.g. profile.b")
     p.add_argument("--values", required=True, help="comma-separated values (JSON each), e.g. -1,-0.5,0,0.5,1")
     p.add_argument("--out", required=True, help="output directory: <param>=<value>/ per job, sweep.csv")
-    p.add_argument("--dask", metavar="ADDR", default=None,
-                   help="Dask scheduler (tcp://host:8786): one task per value (default: BENTRAY_DASK_SCHEDULER, "
-                        "else this process)")
+    p.add_argument(
+        "--dask",
+        metavar="ADDR",
+        default=None,
+        help="Dask scheduler (tcp://host:8786): one task per value (default: BENTRAY_DASK_SCHEDULER, "
+        "else this process)",
+    )
     p.set_defaults(func=cmd_sweep)

@@ -49,8 +49,16 @@ try:  # optional dependency: pip install "bentray[dask]"
 except ImportError as exc:  # pragma: no cover - exercised only without the extra
     raise ImportError("Dask scale-out needs the 'dask' extra: pip install 'bentray[dask]'") from exc
 
-__all__ = ["DEFAULT_RETRIES", "DaskExecutor", "InOrderSum", "aligned_arrays", "connect", "disconnect", "on_worker",
-           "task_numba_threads"]
+__all__ = [
+    "DEFAULT_RETRIES",
+    "DaskExecutor",
+    "InOrderSum",
+    "aligned_arrays",
+    "connect",
+    "disconnect",
+    "on_worker",
+    "task_numba_threads",
+]
 
 # A batch is a pure function of (plan, start, stop): retrying it is always safe. Two retries cover a
 # transient failure plus one more; a worker that dies mid-task is rescheduled by the scheduler anyway
@@ -159,8 +167,9 @@ class DaskExecutor:
 
     name = "dask"
 
-    def __init__(self, address_or_client: str | Client, *, retries: int = DEFAULT_RETRIES,
-                 numba_threads: int | None = None) -> None:
+    def __init__(
+        self, address_or_client: str | Client, *, retries: int = DEFAULT_RETRIES, numba_threads: int | None = None
+    ) -> None:
         if isinstance(address_or_client, Client):
             self._client: Client | None = address_or_client
             self.address = str(address_or_client.scheduler.address)
@@ -176,8 +185,9 @@ class DaskExecutor:
             self._client = connect(self.address)
         return self._client
 
-    def run_batches(self, plan: TracePlan, ranges: list[tuple[int, int]],
-                    on_batch: Callable[[BatchResult], None] | None = None) -> list[BatchResult]:
+    def run_batches(
+        self, plan: TracePlan, ranges: list[tuple[int, int]], on_batch: Callable[[BatchResult], None] | None = None
+    ) -> list[BatchResult]:
         """Scatter ``plan`` to every worker once, trace each [start, stop) range as one task and return the
         BatchResults in completion order (``combine_batches`` sorts them); ``on_batch`` sees each as it
         finishes. Partial fields are summed in batch order as they arrive (:class:`InOrderSum`)."""
@@ -185,8 +195,17 @@ class DaskExecutor:
         tag = uuid.uuid4().hex[:12]
         plan_future = client.scatter(plan, broadcast=True, hash=False)
         futures = [
-            client.submit(on_worker, _batch_task, plan_future, a, b, numba_threads=self.numba_threads,
-                          key=f"bentray-batch-{tag}-{a}-{b}", retries=self.retries, pure=False)
+            client.submit(
+                on_worker,
+                _batch_task,
+                plan_future,
+                a,
+                b,
+                numba_threads=self.numba_threads,
+                key=f"bentray-batch-{tag}-{a}-{b}",
+                retries=self.retries,
+                pure=False,
+            )
             for a, b in ranges
         ]
         out: list[BatchResult] = []

@@ -43,8 +43,9 @@ GROUND_MATERIAL = 1  # material index of a soft flat ground (0 is rigid)
 UNDER_SAMPLED_HITS = 10
 
 
-def fan_spacing_advice(spec: FieldSpec, sources: np.ndarray, elevation_deg: np.ndarray,
-                       azimuth_deg: np.ndarray) -> dict[str, float]:
+def fan_spacing_advice(
+    spec: FieldSpec, sources: np.ndarray, elevation_deg: np.ndarray, azimuth_deg: np.ndarray
+) -> dict[str, float]:
     """Distance between neighbouring rays at the grid point farthest from any source, against the grid
     spacing: rays farther apart than a voxel leave voxels empty (speckled maps)."""
     lo = np.asarray(spec.origin, float)
@@ -52,8 +53,11 @@ def fan_spacing_advice(spec: FieldSpec, sources: np.ndarray, elevation_deg: np.n
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
     r = float(np.max(np.linalg.norm(corners[:, None, :] - np.asarray(sources, float)[None], axis=2)))
     step = max(np.radians(np.diff(elevation_deg).max()), np.radians(np.diff(azimuth_deg).max()))
-    return {"farthest_point_m": r, "ray_spacing_there_m": r * step,
-            "smallest_grid_spacing_m": float(np.min(spec.spacing))}
+    return {
+        "farthest_point_m": r,
+        "ray_spacing_there_m": r * step,
+        "smallest_grid_spacing_m": float(np.min(spec.spacing)),
+    }
 
 
 @dataclass
@@ -105,14 +109,23 @@ def energy_absorption(spec: FieldSpec) -> np.ndarray:
     """Energy absorption coefficient per band (1/m): alpha_dB * ln(10) / 10 (0 if absorption is off)."""
     if not spec.absorption:
         return np.zeros(len(spec.frequencies_hz))
-    a_db = absorption_db_per_m(np.asarray(spec.frequencies_hz, float), spec.temperature_c,
-                               spec.humidity_percent, spec.pressure_kpa)
+    a_db = absorption_db_per_m(
+        np.asarray(spec.frequencies_hz, float), spec.temperature_c, spec.humidity_percent, spec.pressure_kpa
+    )
     return np.asarray(a_db, float) * math.log(10.0) / 10.0
 
 
-def prepare(spec: FieldSpec, *, ray_weights: np.ndarray, source_index: np.ndarray,
-            source_powers_w: np.ndarray | None, materials: list[float | None], max_reflections: int,
-            ground_sound_speed: float, n_slots: int | None = None) -> FieldBuffers:
+def prepare(
+    spec: FieldSpec,
+    *,
+    ray_weights: np.ndarray,
+    source_index: np.ndarray,
+    source_powers_w: np.ndarray | None,
+    materials: list[float | None],
+    max_reflections: int,
+    ground_sound_speed: float,
+    n_slots: int | None = None,
+) -> FieldBuffers:
     """Allocate the accumulators for a job.
 
     ray_weights : (n,) Omega/(4 pi) per ray; source_index : (n,) int; source_powers_w : (n_src, n_f) W
@@ -130,8 +143,18 @@ def prepare(spec: FieldSpec, *, ray_weights: np.ndarray, source_index: np.ndarra
     h = spec.sample_fraction * float(np.min(spec.spacing))
     if spec.mode == "coherent":
         groups = min(int(max_reflections), MAX_COHERENT_GROUPS - 1) + 1
-        return FieldBuffers("coherent", grid, ray_weights[:, None], alpha[:1], np.zeros(1, np.int64), q2tab, q2ax,
-                            h, n_slots, n_groups=groups)
+        return FieldBuffers(
+            "coherent",
+            grid,
+            ray_weights[:, None],
+            alpha[:1],
+            np.zeros(1, np.int64),
+            q2tab,
+            q2ax,
+            h,
+            n_slots,
+            n_groups=groups,
+        )
     weights = np.repeat(ray_weights[:, None], n_f, axis=1)
     band_of = np.arange(n_f)
     alphas = alpha
@@ -150,8 +173,14 @@ def _level(x: np.ndarray) -> np.ndarray:
     return out
 
 
-def finalize(spec: FieldSpec, buffers: FieldBuffers, sound_speed: np.ndarray, trace: TraceResult,
-             source_powers_w: np.ndarray | None, materials: list[float | None]) -> FieldArrays:
+def finalize(
+    spec: FieldSpec,
+    buffers: FieldBuffers,
+    sound_speed: np.ndarray,
+    trace: TraceResult,
+    source_powers_w: np.ndarray | None,
+    materials: list[float | None],
+) -> FieldArrays:
     """Turn accumulators into named point arrays (tl_*, spl_*, spl_a, p_re_*/p_im_*, ray_hits)."""
     grid = buffers.grid
     reduced = buffers.reduce()
@@ -207,20 +236,23 @@ def finalize(spec: FieldSpec, buffers: FieldBuffers, sound_speed: np.ndarray, tr
     }
     field_data = {
         "units": "tl_*: dB re free field at 1 m; spl_*: dB re 1e-12 W/m^2 (intensity level); "
-                 "spl_a: A-weighted total (IEC 61672-1); p_re/p_im: pressure relative to the 1 m free-field "
-                 "amplitude, time factor exp(-i w t); ray_hits: ray passes per voxel",
+        "spl_a: A-weighted total (IEC 61672-1); p_re/p_im: pressure relative to the 1 m free-field "
+        "amplitude, time factor exp(-i w t); ray_hits: ray passes per voxel",
         "grid": "point (i,j,k) at origin + (i,j,k)*spacing, metres, world frame; voxel of size spacing "
-                "centred on each point; NaN: no ray reached the voxel",
+        "centred on each point; NaN: no ray reached the voxel",
         "mode": spec.mode,
         "frequencies_hz": [float(f) for f in spec.frequencies_hz],
         "absorption": f"ISO 9613-1 at {spec.temperature_c:g} C, {spec.humidity_percent:g} %RH, "
-                      f"{spec.pressure_kpa:g} kPa" if spec.absorption else "none",
+        f"{spec.pressure_kpa:g} kPa"
+        if spec.absorption
+        else "none",
     }
     return FieldArrays(grid=grid, arrays=arrays, field_data=field_data, stats=stats)
 
 
-def coherent_pressure(spec: FieldSpec, reduced: FieldReduced, sound_speed: np.ndarray, trace: TraceResult,
-                      materials: list[float | None]) -> np.ndarray:
+def coherent_pressure(
+    spec: FieldSpec, reduced: FieldReduced, sound_speed: np.ndarray, trace: TraceResult, materials: list[float | None]
+) -> np.ndarray:
     """(n_f, n_vox) complex pressure relative to the 1 m free-field amplitude (see module docstring).
 
     sound_speed : (n_vox,) m/s at the grid points (intensity I = E c / V; wavenumber of Q's ground wave).

@@ -115,14 +115,28 @@ class FieldBuffers:
 
     @property
     def nbytes(self) -> int:
-        return sum(a.nbytes for a in (self.energy, self.hits, self.c_energy, self.c_perp2, self.c_time,
-                                       self.c_length, self.c_ray))
+        return sum(
+            a.nbytes
+            for a in (self.energy, self.hits, self.c_energy, self.c_perp2, self.c_time, self.c_length, self.c_ray)
+        )
 
     def kernel_tuple(self) -> tuple:
         """The ``fld`` tuple of traverse.trace_one (order is part of the kernel contract)."""
         return (
-            np.int64(self.code), self.fgeo, self.fshape, self.alpha, self.band_of, self.q2tab, self.q2ax,
-            self.energy, self.hits, self.c_energy, self.c_perp2, self.c_time, self.c_length, self.c_ray,
+            np.int64(self.code),
+            self.fgeo,
+            self.fshape,
+            self.alpha,
+            self.band_of,
+            self.q2tab,
+            self.q2ax,
+            self.energy,
+            self.hits,
+            self.c_energy,
+            self.c_perp2,
+            self.c_time,
+            self.c_length,
+            self.c_ray,
         )
 
     def like(self, weights: np.ndarray, n_slots: int | None = None) -> FieldBuffers:
@@ -130,8 +144,18 @@ class FieldBuffers:
 
         Slots: ``n_slots``, else this object's, else (a template built with 0 slots) this process's numba
         thread count."""
-        return FieldBuffers(self.mode, self.grid, weights, self.alpha, self.band_of, self.q2tab, self.q2ax,
-                            self.h_sample, n_slots or self.n_slots or numba.get_num_threads(), self.n_groups)
+        return FieldBuffers(
+            self.mode,
+            self.grid,
+            weights,
+            self.alpha,
+            self.band_of,
+            self.q2tab,
+            self.q2ax,
+            self.h_sample,
+            n_slots or self.n_slots or numba.get_num_threads(),
+            self.n_groups,
+        )
 
     def collapse(self, ray_offset: int = 0) -> FieldBuffers:
         """Sum the slots into one (in slot order) and shift coherent ray ids by ``ray_offset``: the partial
@@ -187,9 +211,19 @@ def no_field_tuple(n_rays: int) -> tuple[tuple, np.ndarray]:
     """A FIELD_OFF ``fld`` tuple with minimal dummy arrays, and (n_rays, 0) weights."""
     z3 = np.zeros((1, 1, 1))
     fld = (
-        np.int64(FIELD_OFF), np.zeros(FGEO_SIZE), np.ones(3, dtype=np.int64), np.zeros(0),
-        np.zeros(0, dtype=np.int64), np.ones((1, 1, 2, 2)), np.array([0.0, 1.0, 0.0, 1.0]),
-        z3.copy(), np.zeros((1, 1)), z3.copy(), z3.copy(), z3.copy(), z3.copy(),
+        np.int64(FIELD_OFF),
+        np.zeros(FGEO_SIZE),
+        np.ones(3, dtype=np.int64),
+        np.zeros(0),
+        np.zeros(0, dtype=np.int64),
+        np.ones((1, 1, 2, 2)),
+        np.array([0.0, 1.0, 0.0, 1.0]),
+        z3.copy(),
+        np.zeros((1, 1)),
+        z3.copy(),
+        z3.copy(),
+        z3.copy(),
+        z3.copy(),
         np.full((1, 1, 1), -1, dtype=np.int64),
     )
     return fld, np.zeros((n_rays, 0))

@@ -212,8 +212,9 @@ def _panel(
     ax.grid(True, alpha=0.3)
 
 
-def terrain_following_slice(values: np.ndarray, origin: ArrayLike, spacing: ArrayLike, ground_z: np.ndarray,
-                            height: float) -> np.ndarray:
+def terrain_following_slice(
+    values: np.ndarray, origin: ArrayLike, spacing: ArrayLike, ground_z: np.ndarray, height: float
+) -> np.ndarray:
     """(nx, ny) values at the z-node nearest ``ground_z[i, j] + height`` in each grid column (NaN where
     that node is outside the grid). values (nx, ny, nz); origin, spacing (3,) metres; ground_z (nx, ny)."""
     o = np.asarray(origin, dtype=np.float64)
@@ -303,8 +304,11 @@ def write_preview_png(
         ax = fig.add_subplot(1, len(panels), n + 1)
         if kind == "h":
             _panel(fig, ax, axes[0], axes[1], data, "x (m)", "y (m)", norm, label)
-            ax.set_title(f"{receiver_height:.3g} m above the ground" if ground is not None
-                         else f"horizontal slice z = {axes[2][k]:.3g} m")
+            ax.set_title(
+                f"{receiver_height:.3g} m above the ground"
+                if ground is not None
+                else f"horizontal slice z = {axes[2][k]:.3g} m"
+            )
             if shp[0] > 1 and shp[1] > 1:
                 ax.plot([src[0]], [src[1]], marker="*", color="red", markersize=10, linestyle="none")
         else:

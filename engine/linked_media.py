@@ -52,14 +52,40 @@ def trace_linked(
     out_counts = np.zeros((n, 7), dtype=np.int64)
     m = lm.cells
     trace_linked_rays(
-        m.planes, m.neighbours, m.neighbour_face, m.media_ref, m.ref_point, m.gradient, m.size,
-        *lm.kernel_links(), CURVE_CODES[curve], float(c_ref), origins, directions, start_cells,
-        float(max_time_s), int(max_reflections), int(max_steps), record, float(max_time_s / max(path_samples, 1)),
-        cap, path_pts, path_t, path_s, out_state, out_counts,
+        m.planes,
+        m.neighbours,
+        m.neighbour_face,
+        m.media_ref,
+        m.ref_point,
+        m.gradient,
+        m.size,
+        *lm.kernel_links(),
+        CURVE_CODES[curve],
+        float(c_ref),
+        origins,
+        directions,
+        start_cells,
+        float(max_time_s),
+        int(max_reflections),
+        int(max_steps),
+        record,
+        float(max_time_s / max(path_samples, 1)),
+        cap,
+        path_pts,
+        path_t,
+        path_s,
+        out_state,
+        out_counts,
     )
     if surface_tests is not None:
         surface_tests[:] = out_counts[:, 6]
     paths = gather_paths(path_pts, path_t, path_s, out_counts[:, 5], cap) if record else None
-    return kernel_trace_result(out_state, status=out_counts[:, 0], reflections=out_counts[:, 1],
-                               crossings=out_counts[:, 2], nudges=out_counts[:, 3], steps=out_counts[:, 4],
-                               paths=paths)
+    return kernel_trace_result(
+        out_state,
+        status=out_counts[:, 0],
+        reflections=out_counts[:, 1],
+        crossings=out_counts[:, 2],
+        nudges=out_counts[:, 3],
+        steps=out_counts[:, 4],
+        paths=paths,
+    )

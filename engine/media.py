@@ -167,23 +167,30 @@ def build_media(
         else:
             rule, tol, d_min, d_max = _sizing_params(solver, "slabs", hi[2] - lo[2])
             if rule == "gradient":
-                n_at_z = lambda z: size_n(column(z)) if size_n is not None else profile.quantity(  # noqa: E731
-                    "n", column(z))
+                n_at_z = lambda z: (
+                    size_n(column(z))
+                    if size_n is not None
+                    else profile.quantity(  # noqa: E731
+                        "n", column(z)
+                    )
+                )
                 z_levels = gradient_layers(lo[2], hi[2], n_at_z, epsilon=tol, d_min=d_min, d_max=d_max)
             else:
                 z_levels = curvature_layers(lo[2], hi[2], size_m_at_z, delta=tol, d_min=d_min, d_max=d_max)
             stats.update({"sizing_rule": rule, "tolerance": tol, "d_min_m": d_min, "d_max_m": d_max})
         mesh = build_slab_mesh(lo, hi, z_levels, m_at_z, ground=ground, top=top)
         thickness = np.diff(z_levels)
-        stats.update({
-            "cells": int(len(thickness)),
-            "points": int(4 * len(z_levels)),
-            "layers": int(len(thickness)),
-            "min_cell_size_m": float(thickness.min()),
-            "median_cell_size_m": float(np.median(thickness)),
-            "max_cell_size_m": float(thickness.max()),
-            "build_time_s": time.perf_counter() - t0,
-        })
+        stats.update(
+            {
+                "cells": int(len(thickness)),
+                "points": int(4 * len(z_levels)),
+                "layers": int(len(thickness)),
+                "min_cell_size_m": float(thickness.min()),
+                "median_cell_size_m": float(np.median(thickness)),
+                "max_cell_size_m": float(thickness.max()),
+                "build_time_s": time.perf_counter() - t0,
+            }
+        )
         if representation == "slabs":
             stats["approximation_error_eq14"] = relative_error_1d(z_levels, m_at_z, _n_from_quantity(quantity))
         return Media(
@@ -195,12 +202,14 @@ def build_media(
             geometry=lambda: slab_geometry(lo, hi, mesh, z_levels, quantity),
             stats=stats,
         )
-    return _build_tets(profile, quantity, solver, lo, hi, representation, reason, ground, top, extent, t0,
-                       size_q, size_n)
+    return _build_tets(
+        profile, quantity, solver, lo, hi, representation, reason, ground, top, extent, t0, size_q, size_n
+    )
 
 
-def _build_tets(profile, quantity, solver, lo, hi, representation, reason, ground, top, extent, t0,
-                size_q=None, size_n=None) -> Media:
+def _build_tets(
+    profile, quantity, solver, lo, hi, representation, reason, ground, top, extent, t0, size_q=None, size_n=None
+) -> Media:
     from bentray.engine.mesh.fcc import fcc_resample
     from bentray.engine.mesh.tets import approximation_error, build_tet_mesh
 
@@ -226,19 +235,27 @@ def _build_tets(profile, quantity, solver, lo, hi, representation, reason, groun
     )
     points = fcc_resample(lo, hi, spacing, d_min=d_min, d_max=d_max)
     tet = build_tet_mesh(
-        lo, hi, points, quantity_at, spacing=spacing,
-        ground=ground, top=top, gradient_method=solver.gradient,
+        lo,
+        hi,
+        points,
+        quantity_at,
+        spacing=spacing,
+        ground=ground,
+        top=top,
+        gradient_method=solver.gradient,
     )
     stats = dict(tet.stats)
     stats.update({"sizing_rule": rule, "tolerance": tol, "d_min_m": d_min, "d_max_m": d_max})
     # the same headline keys as the slab report (cell size = longest edge)
-    stats.update({
-        "cells": int(tet.cells.n_cells),
-        "points": int(len(tet.points)),
-        "min_cell_size_m": float(tet.cells.size.min()),
-        "median_cell_size_m": float(np.median(tet.cells.size)),
-        "max_cell_size_m": float(tet.cells.size.max()),
-    })
+    stats.update(
+        {
+            "cells": int(tet.cells.n_cells),
+            "points": int(len(tet.points)),
+            "min_cell_size_m": float(tet.cells.size.min()),
+            "median_cell_size_m": float(np.median(tet.cells.size)),
+            "max_cell_size_m": float(tet.cells.size.max()),
+        }
+    )
     stats["build_time_s"] = time.perf_counter() - t0
     # Eq. 14 on an input grid of about 40^3 points spanning the domain
     axes = [np.linspace(lo[i], hi[i], 40) for i in range(3)]
@@ -322,8 +339,16 @@ def build_terrain_media(
 
     v_min = solver.d_min_m if solver.d_min_m is not None else DEFAULT_SLAB_D_MIN * 1e3  # 1 cm
     if rule == "gradient":
-        z_levels = gradient_layers(z_lo, hi[2], lambda z: profile.quantity("n", np.column_stack(
-            [np.full(len(z), centre[0]), np.full(len(z), centre[1]), z])), epsilon=tol, d_min=v_min, d_max=d_max)
+        z_levels = gradient_layers(
+            z_lo,
+            hi[2],
+            lambda z: profile.quantity(
+                "n", np.column_stack([np.full(len(z), centre[0]), np.full(len(z), centre[1]), z])
+            ),
+            epsilon=tol,
+            d_min=v_min,
+            d_max=d_max,
+        )
     else:
         z_levels = curvature_layers(z_lo, hi[2], m_at_z, delta=tol, d_min=v_min, d_max=d_max)
     sigma = (z_levels - z_lo) / (hi[2] - z_lo)
@@ -332,28 +357,46 @@ def build_terrain_media(
     horizontal: float = native if native is not None else extent * DEFAULT_TET_D_MAX_FRACTION / 4.0
     if solver.d_max_m is not None:
         horizontal = min(horizontal, solver.d_max_m)
-    tet = build_terrain_mesh(surfaces, lo, hi, quantity_at, horizontal_spacing=horizontal, layer_levels=sigma,
-                             top=top, gradient_method=solver.gradient)
+    tet = build_terrain_mesh(
+        surfaces,
+        lo,
+        hi,
+        quantity_at,
+        horizontal_spacing=horizontal,
+        layer_levels=sigma,
+        top=top,
+        gradient_method=solver.gradient,
+    )
     index = terrain_index(tet)
     mesh = tet.cells
     stats = dict(tet.stats)
-    stats.update({
-        "sizing_rule": rule, "tolerance": tol, "horizontal_spacing_m": horizontal,
-        "cells": int(mesh.n_cells), "points": int(len(tet.points)), "layers": int(len(sigma) - 1),
-        "min_cell_size_m": float(mesh.size.min()), "median_cell_size_m": float(np.median(mesh.size)),
-        "max_cell_size_m": float(mesh.size.max()),
-        "surface_triangles": int(stats.get("n_boundary_faces", {}).get("ground", 0)
-                                 + stats.get("n_boundary_faces", {}).get("walls", 0)
-                                 + stats.get("n_boundary_faces", {}).get("roofs", 0))
-        if isinstance(stats.get("n_boundary_faces"), dict) else None,
-        "buildings": len(surfaces.footprints),
-        "build_time_s": time.perf_counter() - t0,
-    })
+    stats.update(
+        {
+            "sizing_rule": rule,
+            "tolerance": tol,
+            "horizontal_spacing_m": horizontal,
+            "cells": int(mesh.n_cells),
+            "points": int(len(tet.points)),
+            "layers": int(len(sigma) - 1),
+            "min_cell_size_m": float(mesh.size.min()),
+            "median_cell_size_m": float(np.median(mesh.size)),
+            "max_cell_size_m": float(mesh.size.max()),
+            "surface_triangles": int(
+                stats.get("n_boundary_faces", {}).get("ground", 0)
+                + stats.get("n_boundary_faces", {}).get("walls", 0)
+                + stats.get("n_boundary_faces", {}).get("roofs", 0)
+            )
+            if isinstance(stats.get("n_boundary_faces"), dict)
+            else None,
+            "buildings": len(surfaces.footprints),
+            "build_time_s": time.perf_counter() - t0,
+        }
+    )
     return Media(
         representation="terrain",
         reason=f"scene has {'terrain' if surfaces.terrain is not None else 'flat ground'}"
-               f"{' and ' + str(len(surfaces.footprints)) + ' buildings' if surfaces.footprints else ''}: "
-               "terrain-following conforming tetrahedra (ground, walls and roofs are mesh faces)",
+        f"{' and ' + str(len(surfaces.footprints)) + ' buildings' if surfaces.footprints else ''}: "
+        "terrain-following conforming tetrahedra (ground, walls and roofs are mesh faces)",
         quantity=quantity,
         mesh=mesh,
         locate=lambda xyz: locate_in_terrain_mesh(tet, xyz, index),

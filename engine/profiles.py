@@ -364,9 +364,7 @@ class _Mirage(Profile):
 
     _native = "n2"
 
-    def __init__(
-        self, mu0: float = 1.000233, mu1: float = 0.4584, beta: float = 2.303, c_ref: float = 340.0
-    ) -> None:
+    def __init__(self, mu0: float = 1.000233, mu1: float = 0.4584, beta: float = 2.303, c_ref: float = 340.0) -> None:
         super().__init__(c_ref=c_ref, stratified=True)
         self.mu0 = _positive("mu0", mu0)
         self.mu1 = _finite("mu1", mu1)
@@ -827,9 +825,7 @@ class Grid(Profile):
                         c_ref=c_ref,
                         source_path=p,
                     )
-                raise ValueError(
-                    f"grid file {p!r} is missing key 'c' (or 'temperature_k'), has {sorted(keys)}"
-                )
+                raise ValueError(f"grid file {p!r} is missing key 'c' (or 'temperature_k'), has {sorted(keys)}")
         import pyvista
 
         mesh = pyvista.read(p)

@@ -114,14 +114,34 @@ def concat_traces(parts: list[TraceResult]) -> TraceResult:
             time_s=np.concatenate([p.paths.time_s for p in parts if p.paths is not None]),
             length_m=np.concatenate([p.paths.length_m for p in parts if p.paths is not None]),
         )
-    required = {name: cat(name) for name in ("source", "elevation_deg", "azimuth_deg", "position", "direction",
-                                             "time_s", "length_m", "reflections", "status", "crossings", "nudges")}
-    return TraceResult(**required, paths=paths, steps=cat("steps"),  # type: ignore[arg-type]
-                       reflection_cos=cat("reflection_cos"), reflection_material=cat("reflection_material"))
+    required = {
+        name: cat(name)
+        for name in (
+            "source",
+            "elevation_deg",
+            "azimuth_deg",
+            "position",
+            "direction",
+            "time_s",
+            "length_m",
+            "reflections",
+            "status",
+            "crossings",
+            "nudges",
+        )
+    }
+    return TraceResult(
+        **required,
+        paths=paths,
+        steps=cat("steps"),  # type: ignore[arg-type]
+        reflection_cos=cat("reflection_cos"),
+        reflection_material=cat("reflection_material"),
+    )
 
 
-def gather_paths(path_pts: np.ndarray, path_t: np.ndarray, path_s: np.ndarray, counts: np.ndarray,
-                 cap: int) -> RayPaths:
+def gather_paths(
+    path_pts: np.ndarray, path_t: np.ndarray, path_s: np.ndarray, counts: np.ndarray, cap: int
+) -> RayPaths:
     """RayPaths from the kernels' fixed-capacity path buffers: ray i wrote ``counts[i]`` samples into
     slots ``[i * cap, i * cap + counts[i])``."""
     n = counts.shape[0]
@@ -131,16 +151,34 @@ def gather_paths(path_pts: np.ndarray, path_t: np.ndarray, path_s: np.ndarray, c
     return RayPaths(offsets=offsets, points=path_pts[keep], time_s=path_t[keep], length_m=path_s[keep])
 
 
-def kernel_trace_result(out_state: np.ndarray, *, status: np.ndarray, reflections: np.ndarray,
-                        crossings: np.ndarray, nudges: np.ndarray, steps: np.ndarray,
-                        paths: RayPaths | None = None, **extra: Any) -> TraceResult:
+def kernel_trace_result(
+    out_state: np.ndarray,
+    *,
+    status: np.ndarray,
+    reflections: np.ndarray,
+    crossings: np.ndarray,
+    nudges: np.ndarray,
+    steps: np.ndarray,
+    paths: RayPaths | None = None,
+    **extra: Any,
+) -> TraceResult:
     """TraceResult from a kernel's (n, 8) final states (x, d, time, length) and its per-ray counters;
     launch angles are left NaN and sources 0 (the job fills them in)."""
     n = out_state.shape[0]
     nan = np.full(n, np.nan)
     return TraceResult(
-        source=np.zeros(n, dtype=np.int64), elevation_deg=nan.copy(), azimuth_deg=nan.copy(),
-        position=out_state[:, 0:3].copy(), direction=out_state[:, 3:6].copy(), time_s=out_state[:, 6].copy(),
-        length_m=out_state[:, 7].copy(), reflections=reflections.copy(), status=status.astype(np.int8),
-        crossings=crossings.copy(), nudges=nudges.copy(), paths=paths, steps=steps.copy(), **extra,
+        source=np.zeros(n, dtype=np.int64),
+        elevation_deg=nan.copy(),
+        azimuth_deg=nan.copy(),
+        position=out_state[:, 0:3].copy(),
+        direction=out_state[:, 3:6].copy(),
+        time_s=out_state[:, 6].copy(),
+        length_m=out_state[:, 7].copy(),
+        reflections=reflections.copy(),
+        status=status.astype(np.int8),
+        crossings=crossings.copy(),
+        nudges=nudges.copy(),
+        paths=paths,
+        steps=steps.copy(),
+        **extra,
     )

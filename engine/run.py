@@ -147,22 +147,43 @@ def trace_batch(plan: TracePlan, start: int, stop: int) -> BatchResult:
         from bentray.engine.baselines.trace_numerical import trace_numerical
 
         result, restarts = trace_numerical(
-            plan.baseline["method"], plan.baseline["media"], mesh=plan.mesh, quantity=plan.baseline["quantity"],
-            exact_spec=plan.baseline["exact_spec"], c_ref=plan.c_ref, origins=plan.origins[sl],
-            directions=plan.directions[sl], start_cells=plan.start_cells[sl], max_time_s=plan.max_time_s,
-            max_reflections=plan.max_reflections, max_steps=plan.max_steps, step_m=plan.baseline["step_m"],
-            tolerance=plan.baseline["tolerance"], path_samples=plan.path_samples,
-            domain_min=plan.baseline["domain_min"], domain_max=plan.baseline["domain_max"],
-            ground_z=plan.baseline["ground_z"], top=plan.baseline["top"],
+            plan.baseline["method"],
+            plan.baseline["media"],
+            mesh=plan.mesh,
+            quantity=plan.baseline["quantity"],
+            exact_spec=plan.baseline["exact_spec"],
+            c_ref=plan.c_ref,
+            origins=plan.origins[sl],
+            directions=plan.directions[sl],
+            start_cells=plan.start_cells[sl],
+            max_time_s=plan.max_time_s,
+            max_reflections=plan.max_reflections,
+            max_steps=plan.max_steps,
+            step_m=plan.baseline["step_m"],
+            tolerance=plan.baseline["tolerance"],
+            path_samples=plan.path_samples,
+            domain_min=plan.baseline["domain_min"],
+            domain_max=plan.baseline["domain_max"],
+            ground_z=plan.baseline["ground_z"],
+            top=plan.baseline["top"],
         )
     else:
         if plan.field is not None:
             assert plan.field_weights is not None
             buffers = plan.field.like(plan.field_weights[sl])
         result = trace(
-            plan.mesh, plan.curve, plan.c_ref, plan.origins[sl], plan.directions[sl], plan.start_cells[sl],
-            max_time_s=plan.max_time_s, max_reflections=plan.max_reflections, max_steps=plan.max_steps,
-            path_samples=plan.path_samples, field=buffers, wind=plan.wind,
+            plan.mesh,
+            plan.curve,
+            plan.c_ref,
+            plan.origins[sl],
+            plan.directions[sl],
+            plan.start_cells[sl],
+            max_time_s=plan.max_time_s,
+            max_reflections=plan.max_reflections,
+            max_steps=plan.max_steps,
+            path_samples=plan.path_samples,
+            field=buffers,
+            wind=plan.wind,
         )
         if buffers is not None:
             buffers.collapse(ray_offset=start)
@@ -223,8 +244,9 @@ class LocalExecutor:
 
     name = "local"
 
-    def run_batches(self, plan: TracePlan, ranges: list[tuple[int, int]],
-                    on_batch: Callable[[BatchResult], None] | None = None) -> list[BatchResult]:
+    def run_batches(
+        self, plan: TracePlan, ranges: list[tuple[int, int]], on_batch: Callable[[BatchResult], None] | None = None
+    ) -> list[BatchResult]:
         """Trace the ranges in order; each batch's partial field is added into the first one at once
         (the same order, hence the same bits, as summing them all at the end), so one is held at a time."""
         out = []
@@ -251,8 +273,9 @@ def default_executor() -> Any:
     return LocalExecutor()
 
 
-def run_job(job: Job, base_dir: Path | None = None, *, progress: ProgressFn | None = None,
-            executor: Any = None) -> JobOutcome:
+def run_job(
+    job: Job, base_dir: Path | None = None, *, progress: ProgressFn | None = None, executor: Any = None
+) -> JobOutcome:
     """Run a validated job and return everything it produced (nothing is written).
 
     progress(stage, fraction) is called at each stage and after each ray batch (fraction of the whole
@@ -270,8 +293,11 @@ def run_job(job: Job, base_dir: Path | None = None, *, progress: ProgressFn | No
     timings["profile"] = time.perf_counter() - t0
     stages["profile"] = f"ran: {profile.kind}"
     wind = wind_from_spec(job.wind) if job.wind is not None else None
-    stages["wind"] = (f"ran: {job.wind.kind} wind, effective sound speed c + u . e per ray azimuth"
-                      if job.wind is not None else "skipped: no wind (no wind arrays)")
+    stages["wind"] = (
+        f"ran: {job.wind.kind} wind, effective sound speed c + u . e per ray azimuth"
+        if job.wind is not None
+        else "skipped: no wind (no wind arrays)"
+    )
 
     domain = job.scene.box
     lo = np.asarray(domain.min, float)
@@ -280,8 +306,11 @@ def run_job(job: Job, base_dir: Path | None = None, *, progress: ProgressFn | No
     t0 = time.perf_counter()
     surfaces = load_surfaces(job, base_dir)
     timings["scene"] = time.perf_counter() - t0
-    stages["scene"] = (f"ran: {_describe_surfaces(surfaces)}" if surfaces is not None
-                       else "skipped: flat ground, no terrain or buildings (no constrained meshing)")
+    stages["scene"] = (
+        f"ran: {_describe_surfaces(surfaces)}"
+        if surfaces is not None
+        else "skipped: flat ground, no terrain or buildings (no constrained meshing)"
+    )
     profile = _profile_heights(job, profile, surfaces, lo, hi)
     stages["profile"] += f", heights {job.scene.profile_heights.replace('_', ' ')}"
     report_progress("mesh", 0.05)
@@ -289,17 +318,24 @@ def run_job(job: Job, base_dir: Path | None = None, *, progress: ProgressFn | No
     mesh_curve = solver.mesh_curve
     if solver.is_baseline and solver.media == "exact":
         # the closed-form profile is integrated directly: the mesh only locates nothing; one box cell
-        media = build_media(profile, mesh_curve, solver.model_copy(update={"representation": "uniform"})
-                            if profile.kind == "homogeneous" else solver, lo, hi, ground="reflect",
-                            top=job.scene.top.kind)
+        media = build_media(
+            profile,
+            mesh_curve,
+            solver.model_copy(update={"representation": "uniform"}) if profile.kind == "homogeneous" else solver,
+            lo,
+            hi,
+            ground="reflect",
+            top=job.scene.top.kind,
+        )
     elif surfaces is not None and surfaces.obstacles:
         from bentray.engine.media_obstacles import build_obstacle_media  # pytetwild (optional)
 
         media = build_obstacle_media(profile, mesh_curve, solver, lo, hi, surfaces, top=job.scene.top.kind)
     elif surfaces is not None:
         qfn = sizing_quantity(profile.sound_speed, profile.c_ref, wind, CURVE_QUANTITY[mesh_curve]) if wind else None
-        media = build_terrain_media(profile, mesh_curve, solver, lo, hi, surfaces, top=job.scene.top.kind,
-                                    quantity_fn=qfn)
+        media = build_terrain_media(
+            profile, mesh_curve, solver, lo, hi, surfaces, top=job.scene.top.kind, quantity_fn=qfn
+        )
     else:
         media = build_media(profile, mesh_curve, solver, lo, hi, ground="reflect", top=job.scene.top.kind, wind=wind)
     timings["mesh"] = time.perf_counter() - t0
@@ -309,8 +345,12 @@ def run_job(job: Job, base_dir: Path | None = None, *, progress: ProgressFn | No
     t0 = time.perf_counter()
     src_pos = np.array([s.position for s in job.sources], float)
     if surfaces is not None:
-        check_points_above_ground(surfaces, src_pos, [f"sources.{i}.position" for i in range(len(src_pos))],
-                                  flat_ground_z=float(lo[2]) if surfaces.terrain is None else None)
+        check_points_above_ground(
+            surfaces,
+            src_pos,
+            [f"sources.{i}.position" for i in range(len(src_pos))],
+            flat_ground_z=float(lo[2]) if surfaces.terrain is None else None,
+        )
     src_cells = media.locate(src_pos)
     bad = np.nonzero(src_cells < 0)[0]
     if bad.size:
@@ -330,11 +370,21 @@ def run_job(job: Job, base_dir: Path | None = None, *, progress: ProgressFn | No
         mesh, template, powers = _prepare_field(job, profile, mesh, src_idx, materials)
         timings["field_setup"] = time.perf_counter() - t0
     plan = TracePlan(
-        mesh=mesh, curve=mesh_curve, c_ref=float(profile.c_ref), wind=wind, origins=origins, directions=dirs,
-        start_cells=start_cells, max_time_s=job.rays.max_time_s, max_reflections=job.rays.max_reflections,
-        max_steps=job.rays.max_steps, path_samples=solver.path_samples if record else 0, field=template,
+        mesh=mesh,
+        curve=mesh_curve,
+        c_ref=float(profile.c_ref),
+        wind=wind,
+        origins=origins,
+        directions=dirs,
+        start_cells=start_cells,
+        max_time_s=job.rays.max_time_s,
+        max_reflections=job.rays.max_reflections,
+        max_steps=job.rays.max_steps,
+        path_samples=solver.path_samples if record else 0,
+        field=template,
         field_weights=template.weights if template is not None else None,
-        baseline=_baseline_args(job, profile, lo, hi) if solver.is_baseline else None, source=src_idx,
+        baseline=_baseline_args(job, profile, lo, hi) if solver.is_baseline else None,
+        source=src_idx,
     )
 
     runner = executor if executor is not None else default_executor()
@@ -350,10 +400,14 @@ def run_job(job: Job, base_dir: Path | None = None, *, progress: ProgressFn | No
     parts = runner.run_batches(plan, ranges, on_batch)
     result, buffers, restarts = combine_batches(parts)
     timings["trace"] = time.perf_counter() - t0
-    how = (f"numerical baseline {solver.curve} on {solver.media or 'mesh'} media" if solver.is_baseline
-           else f"{solver.curve} curve")
-    stages["trace"] = (f"ran: {how}, {result.n_rays} rays in {len(ranges)} batch(es) on "
-                       f"{runner.describe()}" + (" (field accumulated along the curves)" if template else ""))
+    how = (
+        f"numerical baseline {solver.curve} on {solver.media or 'mesh'} media"
+        if solver.is_baseline
+        else f"{solver.curve} curve"
+    )
+    stages["trace"] = f"ran: {how}, {result.n_rays} rays in {len(ranges)} batch(es) on {runner.describe()}" + (
+        " (field accumulated along the curves)" if template else ""
+    )
     stages["paths"] = "ran: sampled on the true curves" if record else "skipped: no 'rays' or 'paths' output"
     result.source = src_idx
     result.elevation_deg = el
@@ -363,8 +417,9 @@ def run_job(job: Job, base_dir: Path | None = None, *, progress: ProgressFn | No
     if job.field is not None and buffers is not None:
         t0 = time.perf_counter()
         grid_points = buffers.grid.points()
-        field_arrays = field_stage.finalize(job.field, buffers, profile.sound_speed(grid_points), result, powers,
-                                            materials)
+        field_arrays = field_stage.finalize(
+            job.field, buffers, profile.sound_speed(grid_points), result, powers, materials
+        )
         field_arrays.preview = {
             "source_xyz": list(job.sources[0].position),
             "receiver_z": float(lo[2] + job.field.receiver_height_m),
@@ -378,14 +433,19 @@ def run_job(job: Job, base_dir: Path | None = None, *, progress: ProgressFn | No
             gy = g.origin[1] + g.spacing[1] * np.arange(g.shape[1])
             xy = np.stack(np.meshgrid(gx, gy, indexing="ij"), axis=-1).reshape(-1, 2)
             field_arrays.preview["ground_z"] = terrain_height_function(surfaces.terrain, lo, hi)(xy).reshape(
-                g.shape[0], g.shape[1])
+                g.shape[0], g.shape[1]
+            )
             field_arrays.preview["receiver_height_m"] = float(job.field.receiver_height_m)
         field_arrays.stats["fan_spacing"] = field_stage.fan_spacing_advice(
-            job.field, np.array([src.position for src in job.sources]), job.rays.elevation_deg.values(),
-            job.rays.azimuth_deg.values())
+            job.field,
+            np.array([src.position for src in job.sources]),
+            job.rays.elevation_deg.values(),
+            job.rays.azimuth_deg.values(),
+        )
         timings["field_finalize"] = time.perf_counter() - t0
-        stages["field"] = (f"ran: {job.field.mode}, {buffers.grid.n_points} points, "
-                           f"{len(job.field.frequencies_hz)} bands")
+        stages["field"] = (
+            f"ran: {job.field.mode}, {buffers.grid.n_points} points, {len(job.field.frequencies_hz)} bands"
+        )
     else:
         stages["field"] = "skipped: no field requested"
 
@@ -398,8 +458,9 @@ def run_job(job: Job, base_dir: Path | None = None, *, progress: ProgressFn | No
     else:
         stages["mesh_output"] = "skipped: 'mesh' not in outputs"
 
-    report = build_report(job, profile.describe(), media.representation, media.reason, media.stats,
-                          result, timings, stages)
+    report = build_report(
+        job, profile.describe(), media.representation, media.reason, media.stats, result, timings, stages
+    )
     report["batches"] = {"count": len(ranges), "batch_rays": solver.batch_rays, "executor": runner.name}
     if job.wind is not None:
         report["wind"] = job.wind.model_dump(mode="json")
@@ -433,17 +494,25 @@ def _baseline_args(job: Job, profile, lo: np.ndarray, hi: np.ndarray) -> dict[st
     solver = job.solver
     media = solver.media or "mesh"
     if media == "exact" and isinstance(profile, AboveGround):
-        raise JobInputError("solver.media: 'exact' integrates the closed-form profile in world z, but the domain "
-                            f"bottom is at z = {lo[2]:g} m and scene.profile_heights is 'above_ground'; "
-                            "set scene.profile_heights to 'absolute' or put the ground at z = 0")
+        raise JobInputError(
+            "solver.media: 'exact' integrates the closed-form profile in world z, but the domain "
+            f"bottom is at z = {lo[2]:g} m and scene.profile_heights is 'above_ground'; "
+            "set scene.profile_heights to 'absolute' or put the ground at z = 0"
+        )
     exact = exact_media_spec(profile) if media == "exact" else None
     adaptive = solver.curve in ("euler_adaptive", "dopri5")
     return {
-        "method": solver.curve, "media": media, "quantity": CURVE_QUANTITY[solver.mesh_curve], "exact_spec": exact,
+        "method": solver.curve,
+        "media": media,
+        "quantity": CURVE_QUANTITY[solver.mesh_curve],
+        "exact_spec": exact,
         # defaults: 1 m fixed steps (the GPU paper's order of magnitude); adaptive: 1e-8 m local error
         "step_m": solver.step_m if solver.step_m is not None else 1.0,
         "tolerance": solver.tolerance if solver.tolerance is not None else (1e-8 if adaptive else 1e-8),
-        "domain_min": lo, "domain_max": hi, "ground_z": float(lo[2]), "top": job.scene.top.kind,
+        "domain_min": lo,
+        "domain_max": hi,
+        "ground_z": float(lo[2]),
+        "top": job.scene.top.kind,
     }
 
 
@@ -467,17 +536,32 @@ def _prepare_field(job: Job, profile, mesh: CellMesh, src_idx: np.ndarray, mater
     ground_point = np.array([[job.sources[0].position[0], job.sources[0].position[1], lo[2]]])
     powers = None
     if job.sources[0].power_db is not None:
-        powers = np.array([[field_stage.W_REF * 10.0 ** (src.power_db[b] / 10.0) for b in spec.labels]
-                           for src in job.sources])
-    buffers = field_stage.prepare(spec, ray_weights=weights, source_index=src_idx, source_powers_w=powers,
-                                  materials=materials, max_reflections=job.rays.max_reflections,
-                                  ground_sound_speed=float(profile.sound_speed(ground_point)[0]), n_slots=0)
+        powers = np.array(
+            [[field_stage.W_REF * 10.0 ** (src.power_db[b] / 10.0) for b in spec.labels] for src in job.sources]
+        )
+    buffers = field_stage.prepare(
+        spec,
+        ray_weights=weights,
+        source_index=src_idx,
+        source_powers_w=powers,
+        materials=materials,
+        max_reflections=job.rays.max_reflections,
+        ground_sound_speed=float(profile.sound_speed(ground_point)[0]),
+        n_slots=0,
+    )
     return mesh, buffers, powers
 
 
-def build_report(job: Job, profile_desc: dict[str, Any], representation: str, reason: str,
-                 mesh_stats: dict[str, Any], result: TraceResult, timings: dict[str, float],
-                 stages: dict[str, str]) -> dict[str, Any]:
+def build_report(
+    job: Job,
+    profile_desc: dict[str, Any],
+    representation: str,
+    reason: str,
+    mesh_stats: dict[str, Any],
+    result: TraceResult,
+    timings: dict[str, float],
+    stages: dict[str, str],
+) -> dict[str, Any]:
     """The JSON report: stages, timings, mesh stats, rays by status, crossings."""
     crossings = int(result.crossings.sum())
     steps = int(result.steps.sum()) if result.steps is not None else None

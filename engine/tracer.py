@@ -18,8 +18,9 @@ def path_capacity(path_samples: int, max_reflections: int) -> int:
     return 2 * int(path_samples) + min(int(max_reflections), 10_000) + 8
 
 
-def ray_inputs(curve: str, origins: np.ndarray, directions: np.ndarray, start_cells: np.ndarray,
-               max_time_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def ray_inputs(
+    curve: str, origins: np.ndarray, directions: np.ndarray, start_cells: np.ndarray, max_time_s: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Checked, C-contiguous (n, 3) float64 origins and directions and (n,) int64 start cells for a
     traversal kernel; ValueError for an unknown curve, mismatched lengths or a non-positive time."""
     if curve not in CURVE_CODES:
@@ -86,10 +87,36 @@ def trace(
     refl_cos = np.zeros((n, refl_cap))
     refl_mat = np.zeros((n, refl_cap), dtype=np.int64)
     trace_rays(
-        mesh.planes, mesh.neighbours, mesh.neighbour_face, mesh.media_ref, mesh.ref_point,
-        mesh.gradient, mesh.size, mesh.face_material, CURVE_CODES[curve], float(c_ref), wind_code, wind_params,
-        origins, directions, start_cells, float(max_time_s), int(max_reflections), int(max_steps), record,
-        float(dt_sample), cap, path_pts, path_t, path_s, fld, f_weights, n_slots, refl_cos, refl_mat, out_state,
+        mesh.planes,
+        mesh.neighbours,
+        mesh.neighbour_face,
+        mesh.media_ref,
+        mesh.ref_point,
+        mesh.gradient,
+        mesh.size,
+        mesh.face_material,
+        CURVE_CODES[curve],
+        float(c_ref),
+        wind_code,
+        wind_params,
+        origins,
+        directions,
+        start_cells,
+        float(max_time_s),
+        int(max_reflections),
+        int(max_steps),
+        record,
+        float(dt_sample),
+        cap,
+        path_pts,
+        path_t,
+        path_s,
+        fld,
+        f_weights,
+        n_slots,
+        refl_cos,
+        refl_mat,
+        out_state,
         out_counts,
     )
     paths = None

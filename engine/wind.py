@@ -207,14 +207,14 @@ def max_wind_speed(code: int, params: np.ndarray, xyz: np.ndarray) -> np.ndarray
     return np.abs(wind_speed(code, params, xyz))
 
 
-def effective_sound_speed(c: np.ndarray, code: int, params: np.ndarray, xyz: np.ndarray,
-                          e: np.ndarray) -> np.ndarray:
+def effective_sound_speed(c: np.ndarray, code: int, params: np.ndarray, xyz: np.ndarray, e: np.ndarray) -> np.ndarray:
     """c_eff = c + u . e (m/s) for sound speeds ``c`` (N,) at points ``xyz`` (N, 3) and azimuths e."""
     return np.asarray(c, dtype=np.float64) + wind_along(code, params, xyz, e)
 
 
-def sizing_quantity(sound_speed: Callable[[np.ndarray], np.ndarray], c_ref: float,
-                    wind: tuple[int, np.ndarray] | None, quantity: str) -> Callable[[np.ndarray], np.ndarray]:
+def sizing_quantity(
+    sound_speed: Callable[[np.ndarray], np.ndarray], c_ref: float, wind: tuple[int, np.ndarray] | None, quantity: str
+) -> Callable[[np.ndarray], np.ndarray]:
     """Traced quantity of the downwind effective medium c + |u(x)| at points (N, 3), for mesh sizing.
 
     The downwind ray sees the whole wind speed, so its medium carries the largest wind gradient and

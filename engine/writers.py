@@ -146,8 +146,7 @@ def _check_paths(paths: RayPaths, n_rays: int) -> np.ndarray:
         raise ValueError(f"RayPaths.offsets has shape {offsets.shape}, expected ({n_rays + 1},)")
     if offsets[0] != 0 or offsets[-1] != m or np.any(np.diff(offsets) < 0):
         raise ValueError(
-            f"RayPaths.offsets must rise from 0 to the number of points ({m}); "
-            f"got {offsets[0]} .. {offsets[-1]}"
+            f"RayPaths.offsets must rise from 0 to the number of points ({m}); got {offsets[0]} .. {offsets[-1]}"
         )
     for name in ("time_s", "length_m"):
         if np.shape(getattr(paths, name)) != (m,):
@@ -204,9 +203,7 @@ def write_mesh_vtu(geometry: MeshGeometry, path: str | Path) -> Path:
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f"MeshGeometry.points has shape {points.shape}, expected (P, 3)")
     if conn.ndim != 2 or conn.shape[1] != k:
-        raise ValueError(
-            f"MeshGeometry.connectivity has shape {conn.shape}, expected (C, {k}) for {vtk_type}"
-        )
+        raise ValueError(f"MeshGeometry.connectivity has shape {conn.shape}, expected (C, {k}) for {vtk_type}")
     if conn.size and (conn.min() < 0 or conn.max() >= points.shape[0]):
         raise ValueError(f"MeshGeometry.connectivity refers to points outside 0..{points.shape[0] - 1}")
     n_cells = conn.shape[0]
@@ -237,9 +234,7 @@ def _jsonable(obj: Any, where: str = "report") -> Any:
             if isinstance(key, np.generic):
                 key = key.item()
             if isinstance(key, bool) or not isinstance(key, str | int):
-                raise TypeError(
-                    f"{where}: key {key!r} of type {type(key).__name__} is not a string or integer"
-                )
+                raise TypeError(f"{where}: key {key!r} of type {type(key).__name__} is not a string or integer")
             out[str(key)] = _jsonable(value, f"{where}.{key}")
         return out
     if isinstance(obj, np.ndarray):
@@ -283,10 +278,19 @@ def _write_preview(outcome: JobOutcome, path: Path) -> None:
     fa = outcome.field
     assert fa is not None
     name, label = fa.preview_array()
-    write_preview_png(path, fa.grid.origin, fa.grid.spacing, fa.grid.shape, fa.arrays[name],
-                      source_xyz=fa.preview["source_xyz"], receiver_z=fa.preview["receiver_z"],
-                      title=fa.preview["title"], label=label, ground_z=fa.preview.get("ground_z"),
-                      receiver_height=fa.preview.get("receiver_height_m"))
+    write_preview_png(
+        path,
+        fa.grid.origin,
+        fa.grid.spacing,
+        fa.grid.shape,
+        fa.arrays[name],
+        source_xyz=fa.preview["source_xyz"],
+        receiver_z=fa.preview["receiver_z"],
+        title=fa.preview["title"],
+        label=label,
+        ground_z=fa.preview.get("ground_z"),
+        receiver_height=fa.preview.get("receiver_height_m"),
+    )
 
 
 def _planned_files(outcome: JobOutcome, outputs: list[str]) -> list[str]:

@@ -188,13 +188,21 @@ class Scene(_Model):
         if self.builtin is not None:
             for key in ("terrain", "buildings"):
                 if getattr(self, key) is not None:
-                    errors.append(((key,), f"builtin scene {self.builtin!r} brings its own {key}; "
-                                   "remove one of them", None))
+                    errors.append(
+                        ((key,), f"builtin scene {self.builtin!r} brings its own {key}; remove one of them", None)
+                    )
         if self.terrain is not None and self.ground.flow_resistivity is not None:
-            errors.append((("ground", "flow_resistivity"), "with terrain, give the ground material as "
-                           "scene.terrain.material (defined in scene.materials)", self.ground.flow_resistivity))
-        errors.extend((loc, reason, None) for loc, reason in
-                      material_reference_errors(self.terrain, self.buildings, self.materials))
+            errors.append(
+                (
+                    ("ground", "flow_resistivity"),
+                    "with terrain, give the ground material as scene.terrain.material (defined in scene.materials)",
+                    self.ground.flow_resistivity,
+                )
+            )
+        errors.extend(
+            (loc, reason, None)
+            for loc, reason in material_reference_errors(self.terrain, self.buildings, self.materials)
+        )
         if errors:
             _fail(errors, "Scene")
         return self
@@ -377,12 +385,22 @@ class Solver(_Model):
         if not self.is_baseline:
             for key in ("step_m", "tolerance", "media"):
                 if getattr(self, key) is not None:
-                    errors.append(((key,), f"{key} applies to the numerical baselines "
-                                           f"({', '.join(BASELINE_CURVES)}), not to curve {self.curve!r}",
-                                   getattr(self, key)))
+                    errors.append(
+                        (
+                            (key,),
+                            f"{key} applies to the numerical baselines "
+                            f"({', '.join(BASELINE_CURVES)}), not to curve {self.curve!r}",
+                            getattr(self, key),
+                        )
+                    )
         elif self.tolerance is not None and self.curve not in ("euler_adaptive", "dopri5"):
-            errors.append((("tolerance",), f"{self.curve} takes fixed steps (step_m); tolerance applies to "
-                                           "euler_adaptive and dopri5", self.tolerance))
+            errors.append(
+                (
+                    ("tolerance",),
+                    f"{self.curve} takes fixed steps (step_m); tolerance applies to euler_adaptive and dopri5",
+                    self.tolerance,
+                )
+            )
         if self.d_min_m is not None and self.d_max_m is not None and self.d_min_m > self.d_max_m:
             errors.append(
                 (
@@ -478,8 +496,13 @@ class Job(_Model):
         if self.field is not None:
             errors.append((("field",), f"{why} does not accumulate fields; use an analytic curve", None))
         if solver.media == "exact" and self.scene.has_surfaces:
-            errors.append((("solver", "media"), "'exact' media know flat ground only; use 'mesh' with terrain "
-                                                "or buildings", solver.media))
+            errors.append(
+                (
+                    ("solver", "media"),
+                    "'exact' media know flat ground only; use 'mesh' with terrain or buildings",
+                    solver.media,
+                )
+            )
         return errors
 
     def _field_errors(self) -> list[tuple[tuple[str | int, ...], str, Any]]:

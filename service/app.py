@@ -88,14 +88,23 @@ class BodyLimitMiddleware:
                 error = InvalidInputError.from_lines(["request: invalid Content-Length header"])
             elif int(length) > self.limit:
                 error = UploadTooLargeError(
-                    f"request body of {int(length):,} bytes exceeds this server's limit of {self.limit:,} bytes")
+                    f"request body of {int(length):,} bytes exceeds this server's limit of {self.limit:,} bytes"
+                )
             if error is not None:
                 import json
 
                 body = json.dumps(error.body()).encode()
-                await send({"type": "http.response.start", "status": error.status,
-                            "headers": [(b"content-type", b"application/json"),
-                                        (b"content-length", str(len(body)).encode()), (b"connection", b"close")]})
+                await send(
+                    {
+                        "type": "http.response.start",
+                        "status": error.status,
+                        "headers": [
+                            (b"content-type", b"application/json"),
+                            (b"content-length", str(len(body)).encode()),
+                            (b"connection", b"close"),
+                        ],
+                    }
+                )
                 await send({"type": "http.response.body", "body": body})
                 return
         await self.app(scope, receive, send)
@@ -110,10 +119,20 @@ def _job_info(record: JobRecord) -> JobInfo:
     if record.status is JobStatus.SUCCEEDED:
         links.update({name: f"{base}/results/{name}" for name in record.files})
     return JobInfo(
-        id=record.id, name=record.name, status=record.status.value, stage=record.stage, progress=record.progress,
-        created_at=record.created_at, started_at=record.started_at, finished_at=record.finished_at,
-        error=record.error, attempts=record.attempts, cancel_requested=record.cancel_requested,
-        results=record.files if record.status is JobStatus.SUCCEEDED else [], timings_s=record.timings, links=links,
+        id=record.id,
+        name=record.name,
+        status=record.status.value,
+        stage=record.stage,
+        progress=record.progress,
+        created_at=record.created_at,
+        started_at=record.started_at,
+        finished_at=record.finished_at,
+        error=record.error,
+        attempts=record.attempts,
+        cancel_requested=record.cancel_requested,
+        results=record.files if record.status is JobStatus.SUCCEEDED else [],
+        timings_s=record.timings,
+        links=links,
     )
 
 
@@ -147,11 +166,15 @@ def _kind_for(field: str, name: str) -> UploadKind | None:
 def _limit_errors(job: Job, settings: Settings) -> list[str]:
     lines = []
     if job.n_rays > settings.max_rays:
-        lines.append(f"rays: {job.n_rays:,} rays (sources x elevations x azimuths) exceed this server's limit "
-                     f"of {settings.max_rays:,} rays per job")
+        lines.append(
+            f"rays: {job.n_rays:,} rays (sources x elevations x azimuths) exceed this server's limit "
+            f"of {settings.max_rays:,} rays per job"
+        )
     if job.field is not None and job.field.n_points > settings.max_field_points:
-        lines.append(f"field.shape: {job.field.n_points:,} field points exceed this server's limit of "
-                     f"{settings.max_field_points:,}")
+        lines.append(
+            f"field.shape: {job.field.n_points:,} field points exceed this server's limit of "
+            f"{settings.max_field_points:,}"
+        )
     return lines
 
 
@@ -213,9 +236,12 @@ def create_app(settings: Settings, *, start_workers: bool = True) -> FastAPI:
                 await run_in_threadpool(supervisor.stop)
 
     app = FastAPI(
-        title="bentray", version=bentray.__version__, lifespan=lifespan, docs_url="/docs",
+        title="bentray",
+        version=bentray.__version__,
+        lifespan=lifespan,
+        docs_url="/docs",
         description="Outdoor-acoustics curved-ray engine as a service: submit a job (scene, profile, rays), "
-                    "watch it run, download rays.csv, rays.vtp, mesh.vtu, field.vti, preview.png, report.json.",
+        "watch it run, download rays.csv, rays.vtp, mesh.vtu, field.vti, preview.png, report.json.",
     )
     install_error_handlers(app)
     _document_job_schema(app)
@@ -256,8 +282,13 @@ def create_app(settings: Settings, *, start_workers: bool = True) -> FastAPI:
             sup = "external"
         else:
             sup = "running" if supervisor is not None and supervisor.alive else "stopped"
-        return Health(status="ok" if sup != "stopped" else "degraded", version=bentray.__version__,
-                      workers=settings.workers, supervisor=sup, auth="api-keys" if key_owners else "local")
+        return Health(
+            status="ok" if sup != "stopped" else "degraded",
+            version=bentray.__version__,
+            workers=settings.workers,
+            supervisor=sup,
+            auth="api-keys" if key_owners else "local",
+        )
 
     @app.get("/v1/scenes", response_model=list[SceneInfo], tags=["scenes"])
     def scenes(owner: Owner) -> list[SceneInfo]:
@@ -268,12 +299,32 @@ def create_app(settings: Settings, *, start_workers: bool = True) -> FastAPI:
         return list(state["scenes"])
 
     # -- assets --------------------------------------------------------------------------------
-    asset_body = {"requestBody": {"required": True, "content": {"multipart/form-data": {"schema": {
-        "type": "object", "required": ["file"], "properties": {
-            "file": {"type": "string", "format": "binary", "description": "the file; its name is the asset name"},
-            "name": {"type": "string", "description": "asset name (default: the uploaded file name)"},
-            "kind": {"type": "string", "enum": list(UPLOAD_KINDS), "description": "default: from the suffix"},
-        }}}}}}
+    asset_body = {
+        "requestBody": {
+            "required": True,
+            "content": {
+                "multipart/form-data": {
+                    "schema": {
+                        "type": "object",
+                        "required": ["file"],
+                        "properties": {
+                            "file": {
+                                "type": "string",
+                                "format": "binary",
+                                "description": "the file; its name is the asset name",
+                            },
+                            "name": {"type": "string", "description": "asset name (default: the uploaded file name)"},
+                            "kind": {
+                                "type": "string",
+                                "enum": list(UPLOAD_KINDS),
+                                "description": "default: from the suffix",
+                            },
+                        },
+                    }
+                }
+            },
+        }
+    }
 
     @app.post("/v1/assets", status_code=201, response_model=AssetInfo, tags=["assets"], openapi_extra=asset_body)
     async def upload_asset(request: Request, owner: Owner) -> AssetInfo:
@@ -295,7 +346,8 @@ def create_app(settings: Settings, *, start_workers: bool = True) -> FastAPI:
             kind = kind_text if isinstance(kind_text, str) else default_kind(name)
             if kind is None:
                 raise InvalidInputError.from_lines(
-                    [f"name: cannot tell the kind of {name!r} from its suffix; give kind ({', '.join(UPLOAD_KINDS)})"])
+                    [f"name: cannot tell the kind of {name!r} from its suffix; give kind ({', '.join(UPLOAD_KINDS)})"]
+                )
             dest_dir = layout.asset_dir(owner)
             dest_dir.mkdir(parents=True, exist_ok=True)
             tmp = Path(tempfile.mkdtemp(prefix=".upload.", dir=dest_dir)) / name
@@ -309,13 +361,16 @@ def create_app(settings: Settings, *, start_workers: bool = True) -> FastAPI:
             finally:
                 shutil.rmtree(tmp.parent, ignore_errors=True)
         record = await run_in_threadpool(store.put_asset, owner, name, size, sha, accepted)
-        return AssetInfo(name=record.name, kind=record.kind, size=record.size, sha256=record.sha256,
-                         created_at=record.created_at)
+        return AssetInfo(
+            name=record.name, kind=record.kind, size=record.size, sha256=record.sha256, created_at=record.created_at
+        )
 
     @app.get("/v1/assets", response_model=list[AssetInfo], tags=["assets"])
     def list_assets(owner: Owner) -> list[AssetInfo]:
-        return [AssetInfo(name=a.name, kind=a.kind, size=a.size, sha256=a.sha256, created_at=a.created_at)
-                for a in store.list_assets(owner)]
+        return [
+            AssetInfo(name=a.name, kind=a.kind, size=a.size, sha256=a.sha256, created_at=a.created_at)
+            for a in store.list_assets(owner)
+        ]
 
     @app.delete("/v1/assets/{name}", status_code=204, tags=["assets"])
     def delete_asset(name: str, owner: Owner) -> Response:
@@ -325,13 +380,28 @@ def create_app(settings: Settings, *, start_workers: bool = True) -> FastAPI:
         return Response(status_code=204)
 
     # -- jobs ----------------------------------------------------------------------------------
-    job_body = {"requestBody": {"required": True, "content": {
-        "application/json": {"schema": {"$ref": "#/components/schemas/Job"}},
-        "multipart/form-data": {"schema": {"type": "object", "required": ["job"], "properties": {
-            "job": {"type": "string", "description": "the job JSON (text or a file part)"},
-            "files": {"type": "array", "items": {"type": "string", "format": "binary"},
-                      "description": "input files named by the job (terrain, buildings, obstacles, grid)"},
-        }}}}}}
+    job_body = {
+        "requestBody": {
+            "required": True,
+            "content": {
+                "application/json": {"schema": {"$ref": "#/components/schemas/Job"}},
+                "multipart/form-data": {
+                    "schema": {
+                        "type": "object",
+                        "required": ["job"],
+                        "properties": {
+                            "job": {"type": "string", "description": "the job JSON (text or a file part)"},
+                            "files": {
+                                "type": "array",
+                                "items": {"type": "string", "format": "binary"},
+                                "description": "input files named by the job (terrain, buildings, obstacles, grid)",
+                            },
+                        },
+                    }
+                },
+            },
+        }
+    }
 
     async def _read_submission(request: Request, job_dir: Path) -> tuple[str, dict[str, Path]]:
         """The job text and the uploaded files (saved under job_dir/upload) by name."""
@@ -341,11 +411,13 @@ def create_app(settings: Settings, *, start_workers: bool = True) -> FastAPI:
             try:
                 return raw.decode("utf-8"), {}
             except UnicodeDecodeError as exc:
-                raise InvalidInputError.from_lines([f"job: not UTF-8 text (byte {exc.start})"],
-                                                   code="invalid_json") from None
+                raise InvalidInputError.from_lines(
+                    [f"job: not UTF-8 text (byte {exc.start})"], code="invalid_json"
+                ) from None
         if not ctype.startswith("multipart/form-data"):
-            raise UnsupportedMediaError("send the job as application/json, or as multipart/form-data with a "
-                                        "'job' part and 'files' parts")
+            raise UnsupportedMediaError(
+                "send the job as application/json, or as multipart/form-data with a 'job' part and 'files' parts"
+            )
         files: dict[str, Path] = {}
         async with request.form(max_files=_MAX_FILES_PER_JOB + 1, max_fields=8) as form:
             job_part = form.get("job")
@@ -354,8 +426,9 @@ def create_app(settings: Settings, *, start_workers: bool = True) -> FastAPI:
                 try:
                     text = job_bytes.decode("utf-8")
                 except UnicodeDecodeError as exc:
-                    raise InvalidInputError.from_lines([f"job: not UTF-8 text (byte {exc.start})"],
-                                                       code="invalid_json") from None
+                    raise InvalidInputError.from_lines(
+                        [f"job: not UTF-8 text (byte {exc.start})"], code="invalid_json"
+                    ) from None
             elif isinstance(job_part, str):
                 text = job_part
             else:
@@ -388,8 +461,10 @@ def create_app(settings: Settings, *, start_workers: bool = True) -> FastAPI:
                 continue
             asset = store.get_asset(owner, name)
             if asset is None:
-                lines.append(f"{field}: no file {name!r} was uploaded with the job, and there is no asset of that "
-                             "name (POST /v1/assets)")
+                lines.append(
+                    f"{field}: no file {name!r} was uploaded with the job, and there is no asset of that "
+                    "name (POST /v1/assets)"
+                )
                 continue
             placed.append((field, name, layout.asset_path(owner, name)))
         if lines:
@@ -420,9 +495,18 @@ def create_app(settings: Settings, *, start_workers: bool = True) -> FastAPI:
         _prepare_inputs(job, owner, uploaded, inputs)
         return job
 
-    @app.post("/v1/jobs", status_code=202, response_model=JobInfo, tags=["jobs"], openapi_extra=job_body,
-              responses={422: {"description": "invalid job: `field.path: reason` lines"},
-                         413: {"description": "upload too large"}, 429: {"description": "queue full"}})
+    @app.post(
+        "/v1/jobs",
+        status_code=202,
+        response_model=JobInfo,
+        tags=["jobs"],
+        openapi_extra=job_body,
+        responses={
+            422: {"description": "invalid job: `field.path: reason` lines"},
+            413: {"description": "upload too large"},
+            429: {"description": "queue full"},
+        },
+    )
     async def submit_job(request: Request, response: Response, owner: Owner) -> JobInfo:
         """Queue a job (the job JSON of ``scenes/``); files it names come with it or from assets."""
         job_id = new_job_id()
@@ -449,8 +533,12 @@ def create_app(settings: Settings, *, start_workers: bool = True) -> FastAPI:
     def get_job(job_id: str, owner: Owner) -> JobInfo:
         return _job_info(owned_job(job_id, owner))
 
-    @app.delete("/v1/jobs/{job_id}", tags=["jobs"], response_model=JobInfo,
-                responses={202: {"description": "cancelling a running job"}, 204: {"description": "deleted"}})
+    @app.delete(
+        "/v1/jobs/{job_id}",
+        tags=["jobs"],
+        response_model=JobInfo,
+        responses={202: {"description": "cancelling a running job"}, 204: {"description": "deleted"}},
+    )
     def delete_job(job_id: str, owner: Owner, response: Response) -> Any:
         """Cancel a queued or running job (its process is stopped within seconds); delete a finished one."""
         record = owned_job(job_id, owner)
@@ -464,8 +552,12 @@ def create_app(settings: Settings, *, start_workers: bool = True) -> FastAPI:
         response.status_code = 200 if updated.finished else 202
         return _job_info(updated)
 
-    @app.get("/v1/jobs/{job_id}/results/{name}", tags=["jobs"], response_class=FileResponse,
-             responses={200: {"content": {t: {} for t in MEDIA_TYPES.values()}}})
+    @app.get(
+        "/v1/jobs/{job_id}/results/{name}",
+        tags=["jobs"],
+        response_class=FileResponse,
+        responses={200: {"content": {t: {} for t in MEDIA_TYPES.values()}}},
+    )
     def get_result(job_id: str, name: str, owner: Owner) -> FileResponse:
         """Download one result file (streamed)."""
         record = owned_job(job_id, owner)
@@ -478,4 +570,3 @@ def create_app(settings: Settings, *, start_workers: bool = True) -> FastAPI:
         return FileResponse(layout.results(job_id) / name, media_type=MEDIA_TYPES[name], filename=name)
 
     return app
-

@@ -30,11 +30,14 @@ _EXAMPLE = Path(__file__).resolve().parents[1] / "scenes" / "examples" / "a-ld-f
 def _job(rays: int, name: str) -> dict:
     job = json.loads(_EXAMPLE.read_text()) if _EXAMPLE.is_file() else None
     if job is None:  # installed without the examples folder: the same job inline
-        job = {"scene": {"domain": {"min": [-50, -50, 0], "max": [4000, 50, 2600]}, "ground": {"kind": "flat"}},
-               "profile": {"kind": "log", "c0": 340.0, "b": 1.0, "z_g": 1.0}, "sources": [{"position": [0, 0, 1.5]}],
-               "rays": {"elevation_deg": {"min": -45, "max": 45, "count": 91}, "max_time_s": 10.0,
-                        "max_reflections": 50}, "solver": {"curve": "parabolic", "epsilon": 0.001},
-               "outputs": ["rays", "report"]}
+        job = {
+            "scene": {"domain": {"min": [-50, -50, 0], "max": [4000, 50, 2600]}, "ground": {"kind": "flat"}},
+            "profile": {"kind": "log", "c0": 340.0, "b": 1.0, "z_g": 1.0},
+            "sources": [{"position": [0, 0, 1.5]}],
+            "rays": {"elevation_deg": {"min": -45, "max": 45, "count": 91}, "max_time_s": 10.0, "max_reflections": 50},
+            "solver": {"curve": "parabolic", "epsilon": 0.001},
+            "outputs": ["rays", "report"],
+        }
     job["name"] = name
     job["rays"]["elevation_deg"]["count"] = rays
     job["solver"]["batch_rays"] = 5000
@@ -52,8 +55,23 @@ def main(argv: list[str] | None = None) -> int:
     url = f"http://127.0.0.1:{port}"
     with tempfile.TemporaryDirectory(prefix="bentray-bench-") as data:
         env = {k: v for k, v in os.environ.items() if not k.startswith("BENTRAY_")}
-        proc = subprocess.Popen([sys.executable, "-m", "bentray.service", "serve", "--port", str(port), "--workers",
-                                 "2", "--data-dir", data, "--log-level", "warning"], env=env)
+        proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "bentray.service",
+                "serve",
+                "--port",
+                str(port),
+                "--workers",
+                "2",
+                "--data-dir",
+                data,
+                "--log-level",
+                "warning",
+            ],
+            env=env,
+        )
         try:
             with httpx.Client(base_url=url, timeout=10.0) as http:
                 for _ in range(600):
@@ -82,9 +100,11 @@ def main(argv: list[str] | None = None) -> int:
                 for i in ids:
                     http.delete(f"/v1/jobs/{i}")
             ms = 1e3 * times
-            print(f"GET /v1/health x {args.requests} while 2 jobs ran ({os.cpu_count()} CPUs): "
-                  f"p50 {np.percentile(ms, 50):.2f} ms, p99 {np.percentile(ms, 99):.2f} ms, max {ms.max():.2f} ms; "
-                  f"jobs at the end: {', '.join(still)}")
+            print(
+                f"GET /v1/health x {args.requests} while 2 jobs ran ({os.cpu_count()} CPUs): "
+                f"p50 {np.percentile(ms, 50):.2f} ms, p99 {np.percentile(ms, 99):.2f} ms, max {ms.max():.2f} ms; "
+                f"jobs at the end: {', '.join(still)}"
+            )
             return 0 if np.percentile(ms, 99) < 50.0 else 1
         finally:
             proc.terminate()

@@ -31,8 +31,10 @@ def file_name_problem(name: str) -> str | None:
     if ".." in name:
         return f"{name!r} contains '..'; give a plain file name"
     if not _NAME_RE.match(name):
-        return (f"{name!r} is not a plain file name: use letters, digits, '.', '_' and '-' "
-                "(at most 100 characters, not starting with a dot)")
+        return (
+            f"{name!r} is not a plain file name: use letters, digits, '.', '_' and '-' "
+            "(at most 100 characters, not starting with a dot)"
+        )
     return None
 
 

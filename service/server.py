@@ -19,8 +19,13 @@ def _settings(data_dir: str | Path | None, workers: int | None) -> Settings:
     return Settings.from_env(data_dir=Path(data_dir) if data_dir is not None else None, workers=workers)
 
 
-def serve(host: str = "127.0.0.1", port: int = 8000, workers: int | None = None,
-          data_dir: str | Path | None = None, log_level: str = "info") -> None:
+def serve(
+    host: str = "127.0.0.1",
+    port: int = 8000,
+    workers: int | None = None,
+    data_dir: str | Path | None = None,
+    log_level: str = "info",
+) -> None:
     """Run the API (and, with workers > 0, the job processes) until interrupted.
 
     Raises :class:`bentray.service.settings.SettingsError` before listening when the settings are bad or

@@ -242,8 +242,10 @@ class JobStore:
 
     def set_pid(self, job_id: str, attempt: int, pid: int | None) -> None:
         with self._tx() as con:
-            con.execute("UPDATE jobs SET worker_pid = ? WHERE id = ? AND attempts = ? AND status = 'running'",
-                        (pid, job_id, attempt))
+            con.execute(
+                "UPDATE jobs SET worker_pid = ? WHERE id = ? AND attempts = ? AND status = 'running'",
+                (pid, job_id, attempt),
+            )
 
     def set_progress(self, job_id: str, attempt: int, stage: str, progress: float) -> bool:
         """Record the stage and the overall fraction (clipped to 0..1); False if the attempt is stale."""
@@ -256,13 +258,22 @@ class JobStore:
             )
             return cur.rowcount == 1
 
-    def finish(self, job_id: str, attempt: int | None, status: JobStatus, error: str | None = None,
-               files: list[str] | None = None, timings: dict[str, float] | None = None) -> bool:
+    def finish(
+        self,
+        job_id: str,
+        attempt: int | None,
+        status: JobStatus,
+        error: str | None = None,
+        files: list[str] | None = None,
+        timings: dict[str, float] | None = None,
+    ) -> bool:
         """Move a running job (of this attempt, if given) to a finished status; False if it was not running."""
         assert status in FINISHED
         now = time.time()
-        sql = ("UPDATE jobs SET status = ?, error = ?, finished_at = ?, updated_at = ?, worker_pid = NULL, "
-               "stage = ?, progress = CASE WHEN ? = 'succeeded' THEN 1.0 ELSE progress END")
+        sql = (
+            "UPDATE jobs SET status = ?, error = ?, finished_at = ?, updated_at = ?, worker_pid = NULL, "
+            "stage = ?, progress = CASE WHEN ? = 'succeeded' THEN 1.0 ELSE progress END"
+        )
         args: list[Any] = [status.value, error, now, now, status.value, status.value]
         if files is not None:
             sql += ", files = ?"
@@ -285,8 +296,10 @@ class JobStore:
         """
         now = time.time()
         with self._tx() as con:
-            row = con.execute("SELECT attempts, cancel_requested FROM jobs WHERE id = ? AND status = 'running' "
-                              "AND attempts = ?", (job_id, attempt)).fetchone()
+            row = con.execute(
+                "SELECT attempts, cancel_requested FROM jobs WHERE id = ? AND status = 'running' AND attempts = ?",
+                (job_id, attempt),
+            ).fetchone()
             if row is None:
                 return None
             if row["cancel_requested"]:
@@ -320,10 +333,15 @@ class JobStore:
         """Cancel a queued job at once; flag a running one (its supervisor ends the process)."""
         now = time.time()
         with self._tx() as con:
-            con.execute("UPDATE jobs SET status = 'cancelled', stage = 'cancelled', finished_at = ?, updated_at = ? "
-                        "WHERE id = ? AND status = 'queued'", (now, now, job_id))
-            con.execute("UPDATE jobs SET cancel_requested = 1, updated_at = ? WHERE id = ? AND status = 'running'",
-                        (now, job_id))
+            con.execute(
+                "UPDATE jobs SET status = 'cancelled', stage = 'cancelled', finished_at = ?, updated_at = ? "
+                "WHERE id = ? AND status = 'queued'",
+                (now, now, job_id),
+            )
+            con.execute(
+                "UPDATE jobs SET cancel_requested = 1, updated_at = ? WHERE id = ? AND status = 'running'",
+                (now, job_id),
+            )
         return self.get(job_id)
 
     def delete(self, job_id: str) -> bool:
@@ -332,17 +350,23 @@ class JobStore:
 
     def expired(self, before: float) -> list[JobRecord]:
         """Finished jobs whose ``finished_at`` is older than ``before``."""
-        rows = self._connection().execute(
-            "SELECT * FROM jobs WHERE status IN ('succeeded', 'failed', 'cancelled') AND finished_at < ?", (before,)
-        ).fetchall()
+        rows = (
+            self._connection()
+            .execute(
+                "SELECT * FROM jobs WHERE status IN ('succeeded', 'failed', 'cancelled') AND finished_at < ?", (before,)
+            )
+            .fetchall()
+        )
         return [JobRecord.from_row(r) for r in rows]
 
     # -- supervisors ---------------------------------------------------------------------------
     def register_supervisor(self, supervisor: str, host: str, pid: int) -> None:
         now = time.time()
         with self._tx() as con:
-            con.execute("INSERT OR REPLACE INTO supervisors (id, host, pid, started_at, heartbeat) "
-                        "VALUES (?, ?, ?, ?, ?)", (supervisor, host, pid, now, now))
+            con.execute(
+                "INSERT OR REPLACE INTO supervisors (id, host, pid, started_at, heartbeat) VALUES (?, ?, ?, ?, ?)",
+                (supervisor, host, pid, now, now),
+            )
 
     def heartbeat(self, supervisor: str) -> None:
         with self._tx() as con:
@@ -356,22 +380,27 @@ class JobStore:
         return [dict(r) for r in self._connection().execute("SELECT * FROM supervisors").fetchall()]
 
     def running_of_other_supervisors(self, supervisor: str) -> list[JobRecord]:
-        rows = self._connection().execute(
-            "SELECT * FROM jobs WHERE status = 'running' AND (supervisor IS NULL OR supervisor != ?)", (supervisor,)
-        ).fetchall()
+        rows = (
+            self._connection()
+            .execute(
+                "SELECT * FROM jobs WHERE status = 'running' AND (supervisor IS NULL OR supervisor != ?)", (supervisor,)
+            )
+            .fetchall()
+        )
         return [JobRecord.from_row(r) for r in rows]
 
     # -- assets --------------------------------------------------------------------------------
     def put_asset(self, owner: str, name: str, size: int, sha256: str, kind: str) -> AssetRecord:
         now = time.time()
         with self._tx() as con:
-            con.execute("INSERT OR REPLACE INTO assets (owner, name, size, sha256, kind, created_at) "
-                        "VALUES (?, ?, ?, ?, ?, ?)", (owner, name, size, sha256, kind, now))
+            con.execute(
+                "INSERT OR REPLACE INTO assets (owner, name, size, sha256, kind, created_at) VALUES (?, ?, ?, ?, ?, ?)",
+                (owner, name, size, sha256, kind, now),
+            )
         return AssetRecord(owner, name, size, sha256, kind, now)
 
     def get_asset(self, owner: str, name: str) -> AssetRecord | None:
-        row = self._connection().execute("SELECT * FROM assets WHERE owner = ? AND name = ?",
-                                         (owner, name)).fetchone()
+        row = self._connection().execute("SELECT * FROM assets WHERE owner = ? AND name = ?", (owner, name)).fetchone()
         return AssetRecord(**dict(row)) if row is not None else None
 
     def list_assets(self, owner: str) -> list[AssetRecord]:

@@ -77,8 +77,11 @@ def _check_geojson(path: Path) -> None:
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
         features = data.get("features", []) if isinstance(data, dict) else []
-        names = {f.get("properties", {}).get("material") for f in features if isinstance(f, dict)
-                 and isinstance(f.get("properties"), dict)}
+        names = {
+            f.get("properties", {}).get("material")
+            for f in features
+            if isinstance(f, dict) and isinstance(f.get("properties"), dict)
+        }
     except (ValueError, UnicodeDecodeError):
         names = set()
     materials = {"rigid": 0} | {n: i + 1 for i, n in enumerate(sorted(n for n in names if isinstance(n, str)))}
@@ -94,8 +97,9 @@ def check_upload(path: Path, kind: UploadKind) -> str:
 
     suffix = path.suffix.lstrip(".").lower()
     if suffix not in _KIND_SUFFIXES[kind]:
-        raise ValueError(f"a {kind} file must end in one of {', '.join('.' + s for s in _KIND_SUFFIXES[kind])}, "
-                         f"got {path.name!r}")
+        raise ValueError(
+            f"a {kind} file must end in one of {', '.join('.' + s for s in _KIND_SUFFIXES[kind])}, got {path.name!r}"
+        )
     try:
         if kind == "terrain" and suffix == "npz" and "c" in _npz_keys(path):
             kind = "grid"
@@ -136,5 +140,5 @@ def _strip(exc: Exception, path: Path) -> str:
     text = " ".join(str(exc).split())
     for prefix in (f"{path}: ", f"{path}:", str(path)):
         if text.startswith(prefix):
-            return text[len(prefix):].strip()
+            return text[len(prefix) :].strip()
     return text.replace(str(path.parent) + "/", "")

@@ -90,8 +90,9 @@ def _float_timings(report: dict[str, Any]) -> dict[str, float]:
     return out
 
 
-def run_attempt(db_path: str, job_id: str, attempt: int, inputs: str, results: str, threads: int,
-                nice: int, parent_pid: int) -> None:
+def run_attempt(
+    db_path: str, job_id: str, attempt: int, inputs: str, results: str, threads: int, nice: int, parent_pid: int
+) -> None:
     """Child-process entry: run one attempt of a job and record its outcome in the store.
 
     Expected failures (bentray's typed errors, bad inputs, I/O) end the job ``failed`` with their text;
@@ -130,8 +131,13 @@ def run_attempt(db_path: str, job_id: str, attempt: int, inputs: str, results: s
         outcome = run_job(job, Path(inputs), **kwargs)
         store.set_progress(job_id, attempt, "writing", 0.98)
         written = write_outcome(outcome, list(job.outputs), Path(results))
-        store.finish(job_id, attempt, JobStatus.SUCCEEDED, files=[p.name for p in written],
-                     timings=_float_timings(outcome.report))
+        store.finish(
+            job_id,
+            attempt,
+            JobStatus.SUCCEEDED,
+            files=[p.name for p in written],
+            timings=_float_timings(outcome.report),
+        )
     except Exception as exc:  # every failure ends the job with its reason; the process exits cleanly
         log.debug("job %s failed:\n%s", job_id, traceback.format_exc())
         store.finish(job_id, attempt, JobStatus.FAILED, error=_error_text(exc))
@@ -262,8 +268,16 @@ class Supervisor:
         inputs = self.layout.inputs(record.id)
         results = self.layout.results(record.id)
         inputs.mkdir(parents=True, exist_ok=True)
-        args = (str(self.store.path), record.id, record.attempts, str(inputs), str(results),
-                self._threads_per_job, self.settings.worker_nice, os.getpid())
+        args = (
+            str(self.store.path),
+            record.id,
+            record.attempts,
+            str(inputs),
+            str(results),
+            self._threads_per_job,
+            self.settings.worker_nice,
+            os.getpid(),
+        )
         process = self._ctx.Process(target=run_attempt, args=args, name=f"bentray-job-{record.id[:8]}", daemon=False)
         process.start()
         self.store.set_pid(record.id, record.attempts, process.pid)
@@ -283,8 +297,13 @@ class Supervisor:
             attempt = active.record.attempts
             current = self.store.get(job_id)
             if current is None or current.attempts != attempt or current.status is not JobStatus.RUNNING:
-                exiting = (current is not None and current.attempts == attempt and current.finished
-                           and current.finished_at is not None and time.time() - current.finished_at < 10.0)
+                exiting = (
+                    current is not None
+                    and current.attempts == attempt
+                    and current.finished
+                    and current.finished_at is not None
+                    and time.time() - current.finished_at < 10.0
+                )
                 if exiting and active.process.is_alive():
                     continue  # the child recorded its result and is closing down
                 self._terminate(active.process)
@@ -297,16 +316,22 @@ class Supervisor:
                 log.info("job %s cancelled", job_id)
             elif time.monotonic() - active.started > self.settings.max_job_seconds:
                 self._terminate(active.process)
-                self.store.finish(job_id, attempt, JobStatus.FAILED,
-                                  error=f"the job ran longer than this server's limit of "
-                                        f"{self.settings.max_job_seconds:g} s and was stopped")
+                self.store.finish(
+                    job_id,
+                    attempt,
+                    JobStatus.FAILED,
+                    error=f"the job ran longer than this server's limit of "
+                    f"{self.settings.max_job_seconds:g} s and was stopped",
+                )
                 self._active.pop(job_id)
             elif not active.process.is_alive():
                 active.process.join()
-                new = self.store.requeue_or_fail(job_id, attempt, _exit_reason(active.process.exitcode),
-                                                 self.settings.max_attempts)
-                log.warning("job %s attempt %d: process died (exit %s) -> %s", job_id, attempt,
-                            active.process.exitcode, new)
+                new = self.store.requeue_or_fail(
+                    job_id, attempt, _exit_reason(active.process.exitcode), self.settings.max_attempts
+                )
+                log.warning(
+                    "job %s attempt %d: process died (exit %s) -> %s", job_id, attempt, active.process.exitcode, new
+                )
                 self._active.pop(job_id)
 
     def _supervisor_gone(self, sup: dict[str, Any], now: float) -> bool:
@@ -323,9 +348,12 @@ class Supervisor:
         gone = {sid for sid, s in sups.items() if self._supervisor_gone(s, now)}
         for record in self.store.running_of_other_supervisors(self.id):
             if record.supervisor is None or record.supervisor in gone or record.supervisor not in sups:
-                new = self.store.requeue_or_fail(record.id, record.attempts,
-                                                 "the server stopped while the job was running",
-                                                 self.settings.max_attempts)
+                new = self.store.requeue_or_fail(
+                    record.id,
+                    record.attempts,
+                    "the server stopped while the job was running",
+                    self.settings.max_attempts,
+                )
                 log.warning("job %s: orphaned attempt %d recovered -> %s", record.id, record.attempts, new)
         for sid in gone:
             self.store.unregister_supervisor(sid)

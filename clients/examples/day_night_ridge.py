@@ -51,13 +51,20 @@ def study_job(period: str) -> dict:
         "name": f"ridge-{period}",
         "scene": {"builtin": "ridge", "resolution": "medium", "ground": {"kind": "flat"}},
         "profile": {"kind": "log", "c0": 340.0, "b": PROFILES[period], "z_g": 1.0},
-        "sources": [{"position": list(SOURCE), "name": "crest",
-                     "power_db": {str(f): 100.0 for f in BANDS_HZ}}],
-        "rays": {"elevation_deg": {"min": -45, "max": 45, "count": 121},
-                 "azimuth_deg": {"min": 0, "max": 359.5, "count": 720},
-                 "max_time_s": 4.5, "max_reflections": 4},
-        "field": {"origin": list(GRID_ORIGIN), "spacing": list(GRID_SPACING), "shape": list(GRID_SHAPE),
-                  "frequencies_hz": list(BANDS_HZ), "mode": "incoherent"},
+        "sources": [{"position": list(SOURCE), "name": "crest", "power_db": {str(f): 100.0 for f in BANDS_HZ}}],
+        "rays": {
+            "elevation_deg": {"min": -45, "max": 45, "count": 121},
+            "azimuth_deg": {"min": 0, "max": 359.5, "count": 720},
+            "max_time_s": 4.5,
+            "max_reflections": 4,
+        },
+        "field": {
+            "origin": list(GRID_ORIGIN),
+            "spacing": list(GRID_SPACING),
+            "shape": list(GRID_SHAPE),
+            "frequencies_hz": list(BANDS_HZ),
+            "mode": "incoherent",
+        },
         "outputs": ["field", "report"],
     }
 
@@ -70,8 +77,23 @@ def local_server() -> Iterator[str]:
         port = s.getsockname()[1]
     with tempfile.TemporaryDirectory(prefix="bentray-study-") as data:
         env = {k: v for k, v in os.environ.items() if not k.startswith("BENTRAY_")}
-        proc = subprocess.Popen([sys.executable, "-m", "bentray.service", "serve", "--port", str(port),
-                                 "--workers", "2", "--data-dir", data, "--log-level", "warning"], env=env)
+        proc = subprocess.Popen(
+            [
+                sys.executable,
+                "-m",
+                "bentray.service",
+                "serve",
+                "--port",
+                str(port),
+                "--workers",
+                "2",
+                "--data-dir",
+                data,
+                "--log-level",
+                "warning",
+            ],
+            env=env,
+        )
         url = f"http://127.0.0.1:{port}"
         try:
             with BentrayClient(url) as client:
@@ -116,8 +138,9 @@ def plot(x: np.ndarray, y: np.ndarray, maps: dict[str, np.ndarray], path: Path) 
     finite = np.concatenate([m[np.isfinite(m)] for m in maps.values()])
     vmin, vmax = (np.percentile(finite, 2), np.percentile(finite, 99.5)) if finite.size else (0, 1)
     for ax, period in zip(axes[:2], ("day", "night"), strict=True):
-        im = ax.imshow(maps[period].T, origin="lower", extent=extent, aspect="auto", vmin=vmin, vmax=vmax,
-                       cmap="viridis")
+        im = ax.imshow(
+            maps[period].T, origin="lower", extent=extent, aspect="auto", vmin=vmin, vmax=vmax, cmap="viridis"
+        )
         ax.set_title(f"{period} ({'A-LU' if period == 'day' else 'A-LD'}): L_A {RECEIVER_HEIGHT_M:g} m above ground")
         ax.set_ylabel("y (m)")
         fig.colorbar(im, ax=ax, label="dB(A)")
@@ -165,11 +188,14 @@ def main(argv: list[str] | None = None) -> int:
         writer.writerow(["x_m", "terrain_z_m", "day_dBA", "night_dBA", "night_minus_day_dB"])
         for i, xi in enumerate(x):
             d, n = maps["day"][i, j], maps["night"][i, j]
-            writer.writerow([f"{xi:g}", f"{float(ridge_height(np.array(xi))):.2f}", f"{d:.2f}", f"{n:.2f}",
-                             f"{n - d:.2f}"])
+            writer.writerow(
+                [f"{xi:g}", f"{float(ridge_height(np.array(xi))):.2f}", f"{d:.2f}", f"{n:.2f}", f"{n - d:.2f}"]
+            )
     covered = {p: float(np.mean(np.isfinite(m))) for p, m in maps.items()}
-    print(f"wrote {out / 'day_night_ridge.png'} and {out / 'day_night_ridge.csv'} in {time.perf_counter() - t0:.1f} s; "
-          f"map points reached: day {covered['day']:.0%}, night {covered['night']:.0%}")
+    print(
+        f"wrote {out / 'day_night_ridge.png'} and {out / 'day_night_ridge.csv'} in {time.perf_counter() - t0:.1f} s; "
+        f"map points reached: day {covered['day']:.0%}, night {covered['night']:.0%}"
+    )
     return 0
 
 

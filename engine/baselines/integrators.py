@@ -80,8 +80,12 @@ METHOD_EULER = 0  # fixed step, order 1 (the paper's polygonal rays)
 METHOD_EULER_ADAPTIVE = 1  # step doubling (paper Sec. 4.2): two half steps accepted, order 1
 METHOD_RK4 = 2  # classical Runge-Kutta, fixed step, order 4
 METHOD_DOPRI5 = 3  # Dormand-Prince 5(4), adaptive, local extrapolation, FSAL
-METHOD_CODES = {"euler": METHOD_EULER, "euler_adaptive": METHOD_EULER_ADAPTIVE, "rk4": METHOD_RK4,
-                "dopri5": METHOD_DOPRI5}
+METHOD_CODES = {
+    "euler": METHOD_EULER,
+    "euler_adaptive": METHOD_EULER_ADAPTIVE,
+    "rk4": METHOD_RK4,
+    "dopri5": METHOD_DOPRI5,
+}
 
 # All four methods are explicit Runge-Kutta tableaux stepped by one loop (rk_step), so the media code
 # has one call site in the steppers instead of one per stage and method. Rows: METHOD_*; STAGES[m]
@@ -118,8 +122,15 @@ A[METHOD_DOPRI5, 4, :4] = [19372.0 / 6561.0, -25360.0 / 2187.0, 64448.0 / 6561.0
 A[METHOD_DOPRI5, 5, :5] = [9017.0 / 3168.0, -355.0 / 33.0, 46732.0 / 5247.0, 49.0 / 176.0, -5103.0 / 18656.0]
 A[METHOD_DOPRI5, 6, :6] = [35.0 / 384.0, 0.0, 500.0 / 1113.0, 125.0 / 192.0, -2187.0 / 6784.0, 11.0 / 84.0]
 B[METHOD_DOPRI5, :6] = A[METHOD_DOPRI5, 6, :6]
-E[METHOD_DOPRI5, :] = [71.0 / 57600.0, 0.0, -71.0 / 16695.0, 71.0 / 1920.0, -17253.0 / 339200.0, 22.0 / 525.0,
-                       -1.0 / 40.0]
+E[METHOD_DOPRI5, :] = [
+    71.0 / 57600.0,
+    0.0,
+    -71.0 / 16695.0,
+    71.0 / 1920.0,
+    -17253.0 / 339200.0,
+    22.0 / 525.0,
+    -1.0 / 40.0,
+]
 
 # Step-size control. DOPRI5 (Hairer, Norsett & Wanner I, II.4): h_new = h min(FAC_MAX, max(FAC_MIN,
 # SAFETY err^(-1/5))), no growth right after a rejection. Step doubling (paper Sec. 4.2): halve and
@@ -162,8 +173,18 @@ def make_media(
         params = np.ascontiguousarray(params, dtype=np.float64)
         if params[0] != c_ref:
             raise ValueError(f"c_ref {c_ref} differs from the profile's c_ref {params[0]}")
-        return (MEDIA_EXACT, int(code), params, dummy3, dummy_nb, np.zeros(1), np.zeros((1, 3)),
-                np.zeros((1, 3)), 0, float(c_ref))
+        return (
+            MEDIA_EXACT,
+            int(code),
+            params,
+            dummy3,
+            dummy_nb,
+            np.zeros(1),
+            np.zeros((1, 3)),
+            np.zeros((1, 3)),
+            0,
+            float(c_ref),
+        )
     if media == "mesh":
         if mesh is None:
             raise ValueError("media='mesh' needs a CellMesh")
@@ -171,10 +192,16 @@ def make_media(
             raise ValueError(f"quantity must be one of {sorted(QUANTITY_CODES)}, got {quantity!r}")
         f8 = np.float64
         return (
-            MEDIA_MESH, -1, np.zeros(1),
-            np.ascontiguousarray(mesh.planes, dtype=f8), np.ascontiguousarray(mesh.neighbours, dtype=np.int64),
-            np.ascontiguousarray(mesh.media_ref, dtype=f8), np.ascontiguousarray(mesh.ref_point, dtype=f8),
-            np.ascontiguousarray(mesh.gradient, dtype=f8), int(QUANTITY_CODES[quantity]), float(c_ref),
+            MEDIA_MESH,
+            -1,
+            np.zeros(1),
+            np.ascontiguousarray(mesh.planes, dtype=f8),
+            np.ascontiguousarray(mesh.neighbours, dtype=np.int64),
+            np.ascontiguousarray(mesh.media_ref, dtype=f8),
+            np.ascontiguousarray(mesh.ref_point, dtype=f8),
+            np.ascontiguousarray(mesh.gradient, dtype=f8),
+            int(QUANTITY_CODES[quantity]),
+            float(c_ref),
         )
     raise ValueError(f"media must be 'exact' or 'mesh', got {media!r}")
 
@@ -320,7 +347,7 @@ def controlled_step(method, media, cell, y0, k1, h, step_m, tol, y1, knew, yerr,
         if err <= 1.0:
             if method == METHOD_EULER_ADAPTIVE:
                 return True, has, h, (2.0 * h if err < DOUBLING_GROW_BELOW else h), rejected
-            fac = FAC_MAX if err == 0.0 else min(FAC_MAX, max(FAC_MIN, SAFETY * err ** -0.2))
+            fac = FAC_MAX if err == 0.0 else min(FAC_MAX, max(FAC_MIN, SAFETY * err**-0.2))
             return True, has, h, h * (min(fac, 1.0) if rejected > 0 else fac), rejected
         rejected += 1
         if rejected > MAX_REJECTS_IN_A_ROW:
@@ -328,7 +355,7 @@ def controlled_step(method, media, cell, y0, k1, h, step_m, tol, y1, knew, yerr,
         if method == METHOD_EULER_ADAPTIVE:
             h *= 0.5
         else:
-            h *= FAC_MIN if not (err < math.inf) else max(FAC_MIN, SAFETY * err ** -0.2)
+            h *= FAC_MIN if not (err < math.inf) else max(FAC_MIN, SAFETY * err**-0.2)
 
 
 @nb.njit(**NJIT_FLAGS)

@@ -77,8 +77,7 @@ def mesh_n_and_grad(planes, neighbours, media_ref, ref_point, gradient, quantity
     ``out_grad`` (3,) and returns ``(n, cell_found)``; n is NaN when the walk failed, and <= 0 or NaN
     for unphysical media (the tracer's ``lost`` status).
     """
-    return mesh_n_and_grad_at(planes, neighbours, media_ref, ref_point, gradient, quantity, c_ref, cell, x,
-                              out_grad, 0)
+    return mesh_n_and_grad_at(planes, neighbours, media_ref, ref_point, gradient, quantity, c_ref, cell, x, out_grad, 0)
 
 
 @nb.njit(**NJIT_FLAGS)

@@ -205,8 +205,9 @@ def _finite(y):
 
 
 @nb.njit(**NJIT_FLAGS)
-def _resolve_events(method, media, bplanes, btags, cell, y0, k1, h, max_time, eps_x, eps_t, y1, knew, yerr, work,
-                    evp, grz, scratch):
+def _resolve_events(
+    method, media, bplanes, btags, cell, y0, k1, h, max_time, eps_x, eps_t, y1, knew, yerr, work, evp, grz, scratch
+):
     """Shorten the step y0 -> y1 (length h) to the earliest boundary or time event, by restarts.
 
     On return y1 is the final end state (on the event's plane / at max_time, or the untouched step).
@@ -214,8 +215,7 @@ def _resolve_events(method, media, bplanes, btags, cell, y0, k1, h, max_time, ep
     event's plane, ``grz`` a grazed plane the ray slid along (slide_tag != 0), ``moved`` whether x was
     snapped or projected (so f(y1) must be re-evaluated).
     """
-    kind, tag, f, g0, g1, grz_tag, ok = _detect(y0, y1, bplanes, btags, media, cell, max_time, eps_x, eps_t,
-                                                evp, grz)
+    kind, tag, f, g0, g1, grz_tag, ok = _detect(y0, y1, bplanes, btags, media, cell, max_time, eps_x, eps_t, evp, grz)
     ev_kind = EVENT_NONE
     ev_tag = 0
     h_end = h
@@ -226,8 +226,26 @@ def _resolve_events(method, media, bplanes, btags, cell, y0, k1, h, max_time, ep
         if kind == EVENT_NONE or not ok:
             break
         hk = first_guess(method, kind, evp, y0, y1, h_end, g0, g1, media[9])
-        h_end, ok, has, nr = land(method, media, cell, y0, k1, 0.0, min(g0, 0.0), h_end, g1, hk, kind, evp,
-                                   max_time, eps_t if kind == EVENT_TIME else eps_x, y1, knew, yerr, work)
+        h_end, ok, has, nr = land(
+            method,
+            media,
+            cell,
+            y0,
+            k1,
+            0.0,
+            min(g0, 0.0),
+            h_end,
+            g1,
+            hk,
+            kind,
+            evp,
+            max_time,
+            eps_t if kind == EVENT_TIME else eps_x,
+            y1,
+            knew,
+            yerr,
+            work,
+        )
         restarts += nr
         ev_kind = kind
         ev_tag = tag
@@ -239,8 +257,9 @@ def _resolve_events(method, media, bplanes, btags, cell, y0, k1, h, max_time, ep
                 y1[i] -= gg * evp[i]
             moved = True
         # an earlier crossing of another boundary revealed by the landing re-targets it
-        kind, tag, f, g0, g1, _, walk_ok = _detect(y0, y1, bplanes, btags, media, cell, max_time, eps_x, eps_t,
-                                                   evp, scratch)
+        kind, tag, f, g0, g1, _, walk_ok = _detect(
+            y0, y1, bplanes, btags, media, cell, max_time, eps_x, eps_t, evp, scratch
+        )
         ok = ok and walk_ok
     slide_tag = 0
     g_end = plane_g(grz, y1)
@@ -258,9 +277,26 @@ def _resolve_events(method, media, bplanes, btags, cell, y0, k1, h, max_time, ep
                 found = ok
                 break
         if found:
-            h_end, ok, has, nr = land(method, media, cell, y0, k1, hk, glo, h_end, g_end,
-                                       hk + (h_end - hk) * (-glo) / (g_end - glo), EVENT_PLANE, grz, max_time,
-                                       eps_x, y1, knew, yerr, work)
+            h_end, ok, has, nr = land(
+                method,
+                media,
+                cell,
+                y0,
+                k1,
+                hk,
+                glo,
+                h_end,
+                g_end,
+                hk + (h_end - hk) * (-glo) / (g_end - glo),
+                EVENT_PLANE,
+                grz,
+                max_time,
+                eps_x,
+                y1,
+                knew,
+                yerr,
+                work,
+            )
             ev_kind = EVENT_PLANE
             ev_tag = grz_tag
             for i in range(4):
@@ -284,9 +320,30 @@ def _resolve_events(method, media, bplanes, btags, cell, y0, k1, h, max_time, ep
 
 
 @nb.njit(**NJIT_FLAGS)
-def trace_one(method, media, bplanes, btags, x_start, d_start, cell_start, max_time, max_reflections, max_steps,
-              step_m, tol, renormalize, record, dt_sample, path_pts, path_t, path_s, base, cap, out_state,
-              out_counts):
+def trace_one(
+    method,
+    media,
+    bplanes,
+    btags,
+    x_start,
+    d_start,
+    cell_start,
+    max_time,
+    max_reflections,
+    max_steps,
+    step_m,
+    tol,
+    renormalize,
+    record,
+    dt_sample,
+    path_pts,
+    path_t,
+    path_s,
+    base,
+    cap,
+    out_state,
+    out_counts,
+):
     """Integrate one ray. out_state (8,): x, y, z, dx, dy, dz, time_s, length_m.
 
     out_counts (8,): status, reflections, cell crossings, accepted steps, restarts, rejected steps,
@@ -297,8 +354,18 @@ def trace_one(method, media, bplanes, btags, x_start, d_start, cell_start, max_t
     bplanes = bplanes.copy()
     btags = btags.copy()
     if media[0] != MEDIA_MESH:  # exact media: the parameters and the 1-element mesh placeholders
-        media = (media[0], media[1], media[2].copy(), media[3].copy(), media[4].copy(), media[5].copy(),
-                 media[6].copy(), media[7].copy(), media[8], media[9])
+        media = (
+            media[0],
+            media[1],
+            media[2].copy(),
+            media[3].copy(),
+            media[4].copy(),
+            media[5].copy(),
+            media[6].copy(),
+            media[7].copy(),
+            media[8],
+            media[9],
+        )
     y0 = np.zeros(NY)
     y1 = np.zeros(NY)
     k1 = np.zeros(NY)
@@ -345,8 +412,9 @@ def trace_one(method, media, bplanes, btags, x_start, d_start, cell_start, max_t
         if steps >= max_steps:
             status = STATUS_STEP_LIMIT
             break
-        ok, has, h, h_next, rej = controlled_step(method, media, cell, y0, k1, h_next, step_m, tol, y1, knew, yerr,
-                                              work)
+        ok, has, h, h_next, rej = controlled_step(
+            method, media, cell, y0, k1, h_next, step_m, tol, y1, knew, yerr, work
+        )
         rejected += rej
         evals += (rej + 1) * n_per
         if not ok:
@@ -366,8 +434,25 @@ def trace_one(method, media, bplanes, btags, x_start, d_start, cell_start, max_t
         h_end = h
         if crossed:
             ok, has2, h_end, ev_kind, ev_tag, slide_tag, moved, nr = _resolve_events(
-                method, media, bplanes, btags, cell, y0, k1, h, max_time, eps_x, eps_t, y1, knew, yerr, work,
-                evp, grz, ys)
+                method,
+                media,
+                bplanes,
+                btags,
+                cell,
+                y0,
+                k1,
+                h,
+                max_time,
+                eps_x,
+                eps_t,
+                y1,
+                knew,
+                yerr,
+                work,
+                evp,
+                grz,
+                ys,
+            )
             restarts += nr
             evals += nr * n_per
             if nr > 0:
@@ -382,8 +467,7 @@ def trace_one(method, media, bplanes, btags, x_start, d_start, cell_start, max_t
                 break
             evals += 1
         if record and y1[6] - y0[6] > dt_sample:
-            count = _emit_interior(y0, k1, y1, knew, h_end, dt_sample, path_pts, path_t, path_s, base, cap,
-                                   count, ys)
+            count = _emit_interior(y0, k1, y1, knew, h_end, dt_sample, path_pts, path_t, path_s, base, cap, count, ys)
         for i in range(NY):
             k1[i] = knew[i]
             y0[i] = y1[i]
@@ -436,19 +520,61 @@ def trace_one(method, media, bplanes, btags, x_start, d_start, cell_start, max_t
 
 
 @nb.njit(**PARALLEL_FLAGS)
-def trace_rays_numerical(method, media, bplanes, btags, origins, directions, start_cells, max_time,
-                         max_reflections, max_steps, step_m, tol, renormalize, record, dt_sample, path_cap,
-                         path_pts, path_t, path_s, out_state, out_counts):
+def trace_rays_numerical(
+    method,
+    media,
+    bplanes,
+    btags,
+    origins,
+    directions,
+    start_cells,
+    max_time,
+    max_reflections,
+    max_steps,
+    step_m,
+    tol,
+    renormalize,
+    record,
+    dt_sample,
+    path_cap,
+    path_pts,
+    path_t,
+    path_s,
+    out_state,
+    out_counts,
+):
     """All rays in parallel (prange); ray i owns out_state[i], out_counts[i] and the path slice
     ``[i * path_cap, (i + 1) * path_cap)``: no shared writes, deterministic results."""
     for i in nb.prange(origins.shape[0]):
-        trace_one(method, media, bplanes, btags, origins[i], directions[i], start_cells[i], max_time,
-                  max_reflections, max_steps, step_m, tol, renormalize, record, dt_sample, path_pts, path_t,
-                  path_s, i * path_cap, path_cap, out_state[i], out_counts[i])
+        trace_one(
+            method,
+            media,
+            bplanes,
+            btags,
+            origins[i],
+            directions[i],
+            start_cells[i],
+            max_time,
+            max_reflections,
+            max_steps,
+            step_m,
+            tol,
+            renormalize,
+            record,
+            dt_sample,
+            path_pts,
+            path_t,
+            path_s,
+            i * path_cap,
+            path_cap,
+            out_state[i],
+            out_counts[i],
+        )
 
 
-def boundary_planes(domain_min: np.ndarray, domain_max: np.ndarray, ground_z: float, top: str
-                    ) -> tuple[np.ndarray, np.ndarray]:
+def boundary_planes(
+    domain_min: np.ndarray, domain_max: np.ndarray, ground_z: float, top: str
+) -> tuple[np.ndarray, np.ndarray]:
     """Explicit boundary planes ``(m, h)`` (inside: m.x <= h) and their tags, (6, 4) float64 / (6,) int64.
 
     Ground z = ground_z (reflecting), top z = domain_max[2] (open or reflecting), four open sides.
@@ -461,16 +587,20 @@ def boundary_planes(domain_min: np.ndarray, domain_max: np.ndarray, ground_z: fl
         raise ValueError(f"domain_min {lo.tolist()} must be finite and below domain_max {hi.tolist()}")
     if not (math.isfinite(ground_z) and ground_z < hi[2]):
         raise ValueError(f"ground_z {ground_z} must be finite and below the top {hi[2]}")
-    planes = np.array([
-        [0.0, 0.0, -1.0, -ground_z],
-        [0.0, 0.0, 1.0, hi[2]],
-        [-1.0, 0.0, 0.0, -lo[0]],
-        [1.0, 0.0, 0.0, hi[0]],
-        [0.0, -1.0, 0.0, -lo[1]],
-        [0.0, 1.0, 0.0, hi[1]],
-    ])
-    tags = np.array([BOUNDARY_REFLECT, BOUNDARY_REFLECT if top == "reflect" else BOUNDARY_OPEN]
-                    + [BOUNDARY_OPEN] * 4, dtype=np.int64)
+    planes = np.array(
+        [
+            [0.0, 0.0, -1.0, -ground_z],
+            [0.0, 0.0, 1.0, hi[2]],
+            [-1.0, 0.0, 0.0, -lo[0]],
+            [1.0, 0.0, 0.0, hi[0]],
+            [0.0, -1.0, 0.0, -lo[1]],
+            [0.0, 1.0, 0.0, hi[1]],
+        ]
+    )
+    tags = np.array(
+        [BOUNDARY_REFLECT, BOUNDARY_REFLECT if top == "reflect" else BOUNDARY_OPEN] + [BOUNDARY_OPEN] * 4,
+        dtype=np.int64,
+    )
     return planes, tags
 
 
@@ -550,15 +680,39 @@ def trace_numerical(
     out_state = np.zeros((n, 8))
     out_counts = np.zeros((n, 8), dtype=np.int64)
     trace_rays_numerical(
-        METHOD_CODES[method], med, bplanes, btags, origins, directions, start_cells, float(max_time_s),
-        int(max_reflections), int(max_steps), float(step_m), float(tolerance), bool(renormalize), record,
-        float(max_time_s) / max(path_samples, 1), cap, path_pts, path_t, path_s, out_state, out_counts,
+        METHOD_CODES[method],
+        med,
+        bplanes,
+        btags,
+        origins,
+        directions,
+        start_cells,
+        float(max_time_s),
+        int(max_reflections),
+        int(max_steps),
+        float(step_m),
+        float(tolerance),
+        bool(renormalize),
+        record,
+        float(max_time_s) / max(path_samples, 1),
+        cap,
+        path_pts,
+        path_t,
+        path_s,
+        out_state,
+        out_counts,
     )
     paths = gather_paths(path_pts, path_t, path_s, out_counts[:, 7], cap) if record else None
     if stats is not None:
         stats["rejected"] = out_counts[:, 5].copy()
         stats["evaluations"] = out_counts[:, 6].copy()
-    result = kernel_trace_result(out_state, status=out_counts[:, 0], reflections=out_counts[:, 1],
-                                 crossings=out_counts[:, 2], nudges=np.zeros(n, dtype=np.int64),
-                                 steps=out_counts[:, 3], paths=paths)
+    result = kernel_trace_result(
+        out_state,
+        status=out_counts[:, 0],
+        reflections=out_counts[:, 1],
+        crossings=out_counts[:, 2],
+        nudges=np.zeros(n, dtype=np.int64),
+        steps=out_counts[:, 3],
+        paths=paths,
+    )
     return result, out_counts[:, 4].copy()

@@ -36,8 +36,16 @@ from bentray.engine.profiles import Profile, build_profile
 from bentray.engine.tracer import trace
 from bentray.scenes.schema import Solver
 
-__all__ = ["probe", "run_rows", "reference_positions", "StratifiedCase", "CASES", "A_LD", "format_rows",
-           "ANALYTIC_CURVES"]
+__all__ = [
+    "probe",
+    "run_rows",
+    "reference_positions",
+    "StratifiedCase",
+    "CASES",
+    "A_LD",
+    "format_rows",
+    "ANALYTIC_CURVES",
+]
 
 
 @dataclass(frozen=True)
@@ -95,35 +103,61 @@ class StratifiedCase:
 _ACOUSTIC_DOMAIN = ((-50.0, -50.0, 0.0), (4000.0, 50.0, 2600.0))
 _VISUAL_DOMAIN = ((-50.0, -50.0, 0.0), (200.0, 50.0, 200.0))
 CASES: dict[str, StratifiedCase] = {
-    "V-IM": StratifiedCase("V-IM", "mirage_inferior", {"mu0": 1.000233, "mu1": 0.4584, "beta": 2.303}, 0.3,
-                           *_VISUAL_DOMAIN),
-    "V-SM": StratifiedCase("V-SM", "mirage_superior", {"mu0": 1.000233, "mu1": 0.4584, "beta": 2.303}, 0.3,
-                           *_VISUAL_DOMAIN),
+    "V-IM": StratifiedCase(
+        "V-IM", "mirage_inferior", {"mu0": 1.000233, "mu1": 0.4584, "beta": 2.303}, 0.3, *_VISUAL_DOMAIN
+    ),
+    "V-SM": StratifiedCase(
+        "V-SM", "mirage_superior", {"mu0": 1.000233, "mu1": 0.4584, "beta": 2.303}, 0.3, *_VISUAL_DOMAIN
+    ),
     "A-LU": StratifiedCase("A-LU", "log", {"c0": 340.0, "b": -1.0, "z_g": 1.0}, 10.0, *_ACOUSTIC_DOMAIN),
     "A-LD": StratifiedCase("A-LD", "log", {"c0": 340.0, "b": 1.0, "z_g": 1.0}, 10.0, *_ACOUSTIC_DOMAIN),
 }
 
 # Backwards-compatible view of the A-LD case (the probe's original constants).
 A_LD: dict[str, Any] = {
-    "c0": 340.0, "b": 1.0, "z_g": 1.0, "c_ref": 340.0, "source": (0.0, 0.0, 1.5), "t_end": 10.0,
-    "domain_min": (-50.0, -50.0, 0.0), "domain_max": (4000.0, 50.0, 2600.0), "max_reflections": 50,
+    "c0": 340.0,
+    "b": 1.0,
+    "z_g": 1.0,
+    "c_ref": 340.0,
+    "source": (0.0, 0.0, 1.5),
+    "t_end": 10.0,
+    "domain_min": (-50.0, -50.0, 0.0),
+    "domain_max": (4000.0, 50.0, 2600.0),
+    "max_reflections": 50,
 }
 
 # (method, media, setting) rows; setting is step_m for euler / rk4, tolerance for the adaptive methods,
 # delta (slab sizing) for the analytic tracer. "+renorm" rows rescale |p| = n after every step.
 FULL_ROWS = [
-    ("euler", "exact", 4.0), ("euler", "exact", 1.0), ("euler", "exact", 0.25),
-    ("euler_adaptive", "exact", 1e-4), ("euler_adaptive", "exact", 1e-6), ("euler_adaptive", "exact", 1e-8),
-    ("rk4", "exact", 4.0), ("rk4", "exact", 1.0), ("rk4", "exact", 0.25),
+    ("euler", "exact", 4.0),
+    ("euler", "exact", 1.0),
+    ("euler", "exact", 0.25),
+    ("euler_adaptive", "exact", 1e-4),
+    ("euler_adaptive", "exact", 1e-6),
+    ("euler_adaptive", "exact", 1e-8),
+    ("rk4", "exact", 4.0),
+    ("rk4", "exact", 1.0),
+    ("rk4", "exact", 0.25),
     ("rk4+renorm", "exact", 1.0),
-    ("dopri5", "exact", 1e-6), ("dopri5", "exact", 1e-8), ("dopri5", "exact", 1e-10), ("dopri5", "exact", 1e-12),
+    ("dopri5", "exact", 1e-6),
+    ("dopri5", "exact", 1e-8),
+    ("dopri5", "exact", 1e-10),
+    ("dopri5", "exact", 1e-12),
     ("dopri5+renorm", "exact", 1e-8),
-    ("rk4", "mesh", 1.0), ("dopri5", "mesh", 1e-8), ("dopri5", "mesh", 1e-10),
-    ("analytic", "mesh", 1e-6), ("analytic", "mesh", 1e-8), ("analytic", "mesh", 1e-9),
+    ("rk4", "mesh", 1.0),
+    ("dopri5", "mesh", 1e-8),
+    ("dopri5", "mesh", 1e-10),
+    ("analytic", "mesh", 1e-6),
+    ("analytic", "mesh", 1e-8),
+    ("analytic", "mesh", 1e-9),
 ]
 QUICK_ROWS = [
-    ("euler", "exact", 1.0), ("euler_adaptive", "exact", 1e-6), ("rk4", "exact", 1.0),
-    ("dopri5", "exact", 1e-8), ("dopri5", "mesh", 1e-8), ("analytic", "mesh", 1e-8),
+    ("euler", "exact", 1.0),
+    ("euler_adaptive", "exact", 1e-6),
+    ("rk4", "exact", 1.0),
+    ("dopri5", "exact", 1e-8),
+    ("dopri5", "mesh", 1e-8),
+    ("analytic", "mesh", 1e-8),
 ]
 # The mesh rows use the analytic tracer's default slab mesh for the parabolic curve (delta 1e-8).
 MESH_DELTA = 1e-8
@@ -137,8 +171,7 @@ def _fan(count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return o, d, el
 
 
-def reference_positions(directions: np.ndarray, rtol: float = 1e-13, case: StratifiedCase | None = None
-                        ) -> np.ndarray:
+def reference_positions(directions: np.ndarray, rtol: float = 1e-13, case: StratifiedCase | None = None) -> np.ndarray:
     """Final positions (n, 3) m of the case's rays (default A-LD) from its source after t_end, DOP853 in sigma."""
     case = CASES["A-LD"] if case is None else case
     n_and_dnz = case.n_and_dndz()
@@ -192,9 +225,16 @@ class MeshCache:
         return self._meshes[key]
 
 
-def run_rows(case: StratifiedCase, rows: Sequence[tuple[str, str, float]], count: int, repeats: int, *,
-             ref: np.ndarray | None = None, meshes: MeshCache | None = None, min_total_s: float = 0.0
-             ) -> list[dict[str, Any]]:
+def run_rows(
+    case: StratifiedCase,
+    rows: Sequence[tuple[str, str, float]],
+    count: int,
+    repeats: int,
+    *,
+    ref: np.ndarray | None = None,
+    meshes: MeshCache | None = None,
+    min_total_s: float = 0.0,
+) -> list[dict[str, Any]]:
     """Run ``(method, media, setting)`` rows on ``case`` with ``count`` rays; see the module docstring.
 
     method: ``analytic`` (parabolic), ``analytic_circular``, ``analytic_n_linear`` (setting: slab delta), or a
@@ -210,25 +250,59 @@ def run_rows(case: StratifiedCase, rows: Sequence[tuple[str, str, float]], count
     profile = meshes.profile
     lo = np.asarray(case.domain_min, float)
     hi = np.asarray(case.domain_max, float)
-    common = {"c_ref": case.c_ref, "origins": origins, "directions": dirs, "max_time_s": case.t_end,
-              "max_reflections": case.max_reflections, "domain_min": lo, "domain_max": hi}
+    common = {
+        "c_ref": case.c_ref,
+        "origins": origins,
+        "directions": dirs,
+        "max_time_s": case.t_end,
+        "max_reflections": case.max_reflections,
+        "domain_min": lo,
+        "domain_max": hi,
+    }
     out: list[dict[str, Any]] = []
     for name, media, setting in rows:
-        row: dict[str, Any] = {"case": case.key, "method": name, "media": media, "rays": count,
-                               "threads": numba.get_num_threads()}
+        row: dict[str, Any] = {
+            "case": case.key,
+            "method": name,
+            "media": media,
+            "rays": count,
+            "threads": numba.get_num_threads(),
+        }
         if name in ANALYTIC_CURVES:
             curve = ANALYTIC_CURVES[name]
             med = meshes.get(curve, setting)
             cells = med.locate(origins)
-            row.update({"setting": f"delta={setting:g}", "tolerance": float(setting), "cells": med.mesh.n_cells,
-                        "curve": curve})
+            row.update(
+                {
+                    "setting": f"delta={setting:g}",
+                    "tolerance": float(setting),
+                    "cells": med.mesh.n_cells,
+                    "curve": curve,
+                }
+            )
 
             def run(med: Media = med, cells: np.ndarray = cells, curve: str = curve) -> Any:
-                return trace(med.mesh, curve, case.c_ref, origins, dirs, cells,
-                             max_time_s=case.t_end, max_reflections=case.max_reflections)
+                return trace(
+                    med.mesh,
+                    curve,
+                    case.c_ref,
+                    origins,
+                    dirs,
+                    cells,
+                    max_time_s=case.t_end,
+                    max_reflections=case.max_reflections,
+                )
 
-            trace(med.mesh, curve, case.c_ref, origins[:1], dirs[:1], cells[:1], max_time_s=1e-3 * case.t_end,
-                  max_reflections=1)  # compile outside the timing
+            trace(
+                med.mesh,
+                curve,
+                case.c_ref,
+                origins[:1],
+                dirs[:1],
+                cells[:1],
+                max_time_s=1e-3 * case.t_end,
+                max_reflections=1,
+            )  # compile outside the timing
             elapsed, result = best_time(run, repeats, min_total_s)
             row["crossings_per_ray"] = float(result.crossings.mean())
             row["steps_per_ray"] = float(result.steps.mean())
@@ -258,21 +332,25 @@ def run_rows(case: StratifiedCase, rows: Sequence[tuple[str, str, float]], count
                 return trace_numerical(method, media, stats=stats, **kw)
 
             elapsed, (result, restarts) = best_time(run_numerical, repeats, min_total_s)
-            row.update({
-                "steps_per_ray": float(result.steps.mean()),
-                "evaluations_per_ray": float(stats["evaluations"].mean()),
-                "restarts_per_ray": float(restarts.mean()),
-                "rejected_per_ray": float(stats["rejected"].mean()),
-            })
+            row.update(
+                {
+                    "steps_per_ray": float(result.steps.mean()),
+                    "evaluations_per_ray": float(stats["evaluations"].mean()),
+                    "restarts_per_ray": float(restarts.mean()),
+                    "rejected_per_ray": float(stats["rejected"].mean()),
+                }
+            )
         err = np.linalg.norm(result.position - ref, axis=1) / case.norm_m
         finite = bool(np.all(np.isfinite(result.position)))
-        row.update({
-            "error_max": float(np.max(err)) if finite else math.inf,
-            "error_median": float(np.median(err)) if finite else math.inf,
-            "trace_time_s": elapsed,
-            "status": result.status_counts(),
-            "finite": finite,
-        })
+        row.update(
+            {
+                "error_max": float(np.max(err)) if finite else math.inf,
+                "error_median": float(np.median(err)) if finite else math.inf,
+                "trace_time_s": elapsed,
+                "status": result.status_counts(),
+                "finite": finite,
+            }
+        )
         out.append(row)
     return out
 
@@ -284,8 +362,10 @@ def probe(quick: bool = False) -> list[dict[str, Any]]:
 
 def format_rows(rows: list[dict[str, Any]]) -> str:
     """A markdown table of probe rows."""
-    head = ("| method | media | setting | worst error | median error | trace time | steps (crossings)/ray | "
-            "evals/ray | restarts/ray |")
+    head = (
+        "| method | media | setting | worst error | median error | trace time | steps (crossings)/ray | "
+        "evals/ray | restarts/ray |"
+    )
     lines = [head, "|" + " --- |" * 9]
     for r in rows:
         lines.append(

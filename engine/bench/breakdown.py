@@ -41,20 +41,59 @@ from bentray.engine.tracer import trace
 
 __all__ = ["record_entries", "phase_times", "run"]
 
-COLUMNS = ["scene", "curve", "cells", "rays", "segments", "total_s", "setup_s", "face_intersections_s",
-           "advance_s", "other_s", "setup_pct", "face_intersections_pct", "advance_pct", "other_pct",
-           "ns_per_segment", "note"]
+COLUMNS = [
+    "scene",
+    "curve",
+    "cells",
+    "rays",
+    "segments",
+    "total_s",
+    "setup_s",
+    "face_intersections_s",
+    "advance_s",
+    "other_s",
+    "setup_pct",
+    "face_intersections_pct",
+    "advance_pct",
+    "other_pct",
+    "ns_per_segment",
+    "note",
+]
 
 
 @nb.njit(**NJIT_FLAGS)
 def _media_at(media_ref, ref_point, gradient, cell, x):
-    return (media_ref[cell] + gradient[cell, 0] * (x[0] - ref_point[cell, 0])
-            + gradient[cell, 1] * (x[1] - ref_point[cell, 1]) + gradient[cell, 2] * (x[2] - ref_point[cell, 2]))
+    return (
+        media_ref[cell]
+        + gradient[cell, 0] * (x[0] - ref_point[cell, 0])
+        + gradient[cell, 1] * (x[1] - ref_point[cell, 1])
+        + gradient[cell, 2] * (x[2] - ref_point[cell, 2])
+    )
 
 
 @nb.njit(**PARALLEL_FLAGS)
-def _record(planes, neighbours, neighbour_face, media_ref, ref_point, gradient, size, curve, c_ref, origins,
-            directions, start_cells, max_time, max_reflections, cap, ent_cell, ent_face, ent_x, ent_d, counts):
+def _record(
+    planes,
+    neighbours,
+    neighbour_face,
+    media_ref,
+    ref_point,
+    gradient,
+    size,
+    curve,
+    c_ref,
+    origins,
+    directions,
+    start_cells,
+    max_time,
+    max_reflections,
+    cap,
+    ent_cell,
+    ent_face,
+    ent_x,
+    ent_d,
+    counts,
+):
     """Entry states of every ray's cells, ray i in slots [i cap, (i + 1) cap); counts[i] = entries stored."""
     for i in nb.prange(origins.shape[0]):
         x = origins[i].copy()
@@ -78,8 +117,9 @@ def _record(planes, neighbours, neighbour_face, media_ref, ref_point, gradient, 
             m0 = _media_at(media_ref, ref_point, gradient, cell, x)
             if not curves.setup(curve, m0, gradient[cell], d, cs):
                 break
-            face, param = curves.find_exit(curve, cs, x, d, planes[cell], neighbours[cell], entry,
-                                           ON_FACE_REL * size[cell], size[cell])
+            face, param = curves.find_exit(
+                curve, cs, x, d, planes[cell], neighbours[cell], entry, ON_FACE_REL * size[cell], size[cell]
+            )
             if face < 0:
                 break
             dt = curves.time_at(curve, cs, param, c_ref)
@@ -110,8 +150,9 @@ def _record(planes, neighbours, neighbour_face, media_ref, ref_point, gradient, 
 
 
 @nb.njit(**PARALLEL_FLAGS)
-def _replay(phase, planes, neighbours, media_ref, ref_point, gradient, size, curve, c_ref, ent_cell, ent_face,
-            ent_x, ent_d, out):
+def _replay(
+    phase, planes, neighbours, media_ref, ref_point, gradient, size, curve, c_ref, ent_cell, ent_face, ent_x, ent_d, out
+):
     """phase -1: read the entry only; 0: + media and setup; 1: + find_exit; 2: + time_at and evaluate.
     out[e] keeps each result alive (no dead-code elimination)."""
     n = ent_cell.shape[0]
@@ -131,8 +172,9 @@ def _replay(phase, planes, neighbours, media_ref, ref_point, gradient, size, cur
             ok = curves.setup(curve, m0, gradient[cell], d, cs)
             acc = cs[0] + cs[3] + cs[6]
             if ok and phase >= 1:
-                face, param = curves.find_exit(curve, cs, x, d, planes[cell], neighbours[cell], ent_face[e],
-                                               ON_FACE_REL * size[cell], size[cell])
+                face, param = curves.find_exit(
+                    curve, cs, x, d, planes[cell], neighbours[cell], ent_face[e], ON_FACE_REL * size[cell], size[cell]
+                )
                 if face >= 0:
                     acc += param + face
                 if phase >= 2 and face >= 0:
@@ -141,9 +183,18 @@ def _replay(phase, planes, neighbours, media_ref, ref_point, gradient, size, cur
             out[e] = acc
 
 
-def record_entries(mesh: CellMesh, curve: str, c_ref: float, origins: np.ndarray, directions: np.ndarray,
-                   start_cells: np.ndarray, *, max_time_s: float, max_reflections: int, cap: int = 100_000
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def record_entries(
+    mesh: CellMesh,
+    curve: str,
+    c_ref: float,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    start_cells: np.ndarray,
+    *,
+    max_time_s: float,
+    max_reflections: int,
+    cap: int = 100_000,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Cell-entry states of the rays, flattened in ray order: cell (E,) int64, entry face (E,) int64,
     entry point (E, 3) m, unit tangent (E, 3). At most ``cap`` entries per ray."""
     n = len(origins)
@@ -152,40 +203,92 @@ def record_entries(mesh: CellMesh, curve: str, c_ref: float, origins: np.ndarray
     ent_x = np.zeros((n * cap, 3))
     ent_d = np.zeros((n * cap, 3))
     counts = np.zeros(n, dtype=np.int64)
-    _record(mesh.planes, mesh.neighbours, mesh.neighbour_face, mesh.media_ref, mesh.ref_point, mesh.gradient,
-            mesh.size, CURVE_CODES[curve], float(c_ref), np.ascontiguousarray(origins, dtype=np.float64),
-            np.ascontiguousarray(directions, dtype=np.float64), np.ascontiguousarray(start_cells, dtype=np.int64),
-            float(max_time_s), int(max_reflections), int(cap), ent_cell, ent_face, ent_x, ent_d, counts)
+    _record(
+        mesh.planes,
+        mesh.neighbours,
+        mesh.neighbour_face,
+        mesh.media_ref,
+        mesh.ref_point,
+        mesh.gradient,
+        mesh.size,
+        CURVE_CODES[curve],
+        float(c_ref),
+        np.ascontiguousarray(origins, dtype=np.float64),
+        np.ascontiguousarray(directions, dtype=np.float64),
+        np.ascontiguousarray(start_cells, dtype=np.int64),
+        float(max_time_s),
+        int(max_reflections),
+        int(cap),
+        ent_cell,
+        ent_face,
+        ent_x,
+        ent_d,
+        counts,
+    )
     keep = (np.arange(cap)[None, :] < counts[:, None]).reshape(-1)
     return ent_cell[keep], ent_face[keep], ent_x[keep], ent_d[keep]
 
 
-def phase_times(mesh: CellMesh, curve: str, c_ref: float, origins: np.ndarray, directions: np.ndarray,
-                start_cells: np.ndarray, *, max_time_s: float, max_reflections: int, repeats: int = 3,
-                min_total_s: float = 0.3) -> dict[str, Any]:
+def phase_times(
+    mesh: CellMesh,
+    curve: str,
+    c_ref: float,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    start_cells: np.ndarray,
+    *,
+    max_time_s: float,
+    max_reflections: int,
+    repeats: int = 3,
+    min_total_s: float = 0.3,
+) -> dict[str, Any]:
     """Total trace time and its split (module docstring), seconds, best of ``repeats`` warm runs each."""
     kw = {"max_time_s": max_time_s, "max_reflections": max_reflections}
     trace(mesh, curve, c_ref, origins[:1], directions[:1], start_cells[:1], **kw)  # compile
-    total, res = best_time(lambda: trace(mesh, curve, c_ref, origins, directions, start_cells, **kw), repeats,
-                           min_total_s)
+    total, res = best_time(
+        lambda: trace(mesh, curve, c_ref, origins, directions, start_cells, **kw), repeats, min_total_s
+    )
     cap = int(res.steps.max()) + 2  # the recording walk never takes more steps than the real one (+ a margin)
     ent = record_entries(mesh, curve, c_ref, origins, directions, start_cells, cap=cap, **kw)
     out = np.empty(len(ent[0]))
     code = CURVE_CODES[curve]
     phases = []
     for phase in (-1, 0, 1, 2):
+
         def go(phase: int = phase) -> None:
-            _replay(phase, mesh.planes, mesh.neighbours, mesh.media_ref, mesh.ref_point, mesh.gradient, mesh.size,
-                    code, float(c_ref), ent[0], ent[1], ent[2], ent[3], out)
+            _replay(
+                phase,
+                mesh.planes,
+                mesh.neighbours,
+                mesh.media_ref,
+                mesh.ref_point,
+                mesh.gradient,
+                mesh.size,
+                code,
+                float(c_ref),
+                ent[0],
+                ent[1],
+                ent[2],
+                ent[3],
+                out,
+            )
 
         go()  # compile / warm
         phases.append(best_time(go, repeats, min_total_s)[0])
     if not np.all(np.isfinite(out)):
         raise FloatingPointError("replay produced non-finite values")
     load, setup, exit_, advance = phases
-    return {"total_s": total, "load_s": load, "setup_s": setup - load, "face_intersections_s": exit_ - setup,
-            "advance_s": advance - exit_, "other_s": total - (advance - load), "segments": int(res.steps.sum()),
-            "recorded_entries": int(len(ent[0])), "status": res.status_counts()}
+    return {
+        "total_s": total,
+        "load_s": load,
+        "setup_s": setup - load,
+        "face_intersections_s": exit_ - setup,
+        "advance_s": advance - exit_,
+        "other_s": total - (advance - load),
+        "segments": int(res.steps.sum()),
+        "recorded_entries": int(len(ent[0])),
+        "status": res.status_counts(),
+    }
 
 
 def _stratified_scene(count: int) -> SceneMesh:
@@ -198,8 +301,15 @@ def _stratified_scene(count: int) -> SceneMesh:
     case = CASES["A-LD"]
     med = build_media(case.profile(), "parabolic", Solver(), np.array(case.domain_min), np.array(case.domain_max))
     src = np.asarray([case.source], float)
-    return SceneMesh("A-LD slabs", med.mesh, np.repeat(src, count, axis=0), sphere_directions(count),
-                     np.repeat(med.locate(src), count), float(med.stats["build_time_s"]), dict(med.stats))
+    return SceneMesh(
+        "A-LD slabs",
+        med.mesh,
+        np.repeat(src, count, axis=0),
+        sphere_directions(count),
+        np.repeat(med.locate(src), count),
+        float(med.stats["build_time_s"]),
+        dict(med.stats),
+    )
 
 
 @on_timing_threads
@@ -233,16 +343,38 @@ def run(quick: bool, scene_cache: dict[str, Any] | None = None) -> Section:
             mesh = sc.mesh
             if curve != "parabolic":
                 mesh = _requantify(sc, curve)
-            p = phase_times(mesh, curve, 340.0, sc.origins, sc.directions, sc.start_cells, max_time_s=10.0,
-                            max_reflections=3, repeats=repeats, min_total_s=min_total)
+            p = phase_times(
+                mesh,
+                curve,
+                340.0,
+                sc.origins,
+                sc.directions,
+                sc.start_cells,
+                max_time_s=10.0,
+                max_reflections=3,
+                repeats=repeats,
+                min_total_s=min_total,
+            )
             tot = p["total_s"]
             pct = {k: 100.0 * p[f"{k}_s"] / tot for k in ("setup", "face_intersections", "advance", "other")}
-            table.add(scene=sc.name, curve=curve, cells=mesh.n_cells, rays=len(sc.origins), segments=p["segments"],
-                      total_s=tot, setup_s=p["setup_s"], face_intersections_s=p["face_intersections_s"],
-                      advance_s=p["advance_s"], other_s=p["other_s"], setup_pct=pct["setup"],
-                      face_intersections_pct=pct["face_intersections"], advance_pct=pct["advance"],
-                      other_pct=pct["other"], ns_per_segment=1e9 * tot / max(p["segments"], 1),
-                      note=f"lost {p['status']['lost']}")
+            table.add(
+                scene=sc.name,
+                curve=curve,
+                cells=mesh.n_cells,
+                rays=len(sc.origins),
+                segments=p["segments"],
+                total_s=tot,
+                setup_s=p["setup_s"],
+                face_intersections_s=p["face_intersections_s"],
+                advance_s=p["advance_s"],
+                other_s=p["other_s"],
+                setup_pct=pct["setup"],
+                face_intersections_pct=pct["face_intersections"],
+                advance_pct=pct["advance"],
+                other_pct=pct["other"],
+                ns_per_segment=1e9 * tot / max(p["segments"], 1),
+                note=f"lost {p['status']['lost']}",
+            )
     sec = Section("breakdown", "Time breakdown (Table 3)")
     sec.text.append(
         "Rays spread evenly over the sphere from the scene's first source (A-LD slabs: from 1.5 m), 10 s, at most "
@@ -253,13 +385,16 @@ def run(quick: bool, scene_cache: dict[str, Any] | None = None) -> Section:
         "this is the bisection); advance = travel time + end state; other = the rest of the real loop (walk to "
         "the neighbour, reflections, bookkeeping, memory). The split is an estimate (replays differ from the "
         "real loop in memory behaviour; a negative `other` means the replay cost more than its share), the total "
-        "is measured.")
+        "is measured."
+    )
     nl = [r for r in table.rows if r["curve"] == "n_linear" and r["total_s"] != ""]
     for r in nl:
         par = next(p for p in table.rows if p["scene"] == r["scene"] and p["curve"] == "parabolic")
-        sec.text.append(f"{r['scene']}: n-linear bisection {fmt(r['face_intersections_s'])} s "
-                        f"({fmt(r['face_intersections_pct'])} % of its time) vs parabolic quadratics "
-                        f"{fmt(par['face_intersections_s'])} s; total {fmt(r['total_s'] / par['total_s'])}x.")
+        sec.text.append(
+            f"{r['scene']}: n-linear bisection {fmt(r['face_intersections_s'])} s "
+            f"({fmt(r['face_intersections_pct'])} % of its time) vs parabolic quadratics "
+            f"{fmt(par['face_intersections_s'])} s; total {fmt(r['total_s'] / par['total_s'])}x."
+        )
     sec.tables.append(table)
     return sec
 

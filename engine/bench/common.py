@@ -21,8 +21,21 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["Table", "Plot", "Series", "Section", "best_time", "machine_info", "fan", "sphere_directions",
-           "status_text", "fmt", "numba_threads", "on_timing_threads", "TIMING_THREADS"]
+__all__ = [
+    "Table",
+    "Plot",
+    "Series",
+    "Section",
+    "best_time",
+    "machine_info",
+    "fan",
+    "sphere_directions",
+    "status_text",
+    "fmt",
+    "numba_threads",
+    "on_timing_threads",
+    "TIMING_THREADS",
+]
 
 # Comparative timings (every section but throughput) run on this many numba threads. On a machine whose other
 # cores are busy, a second thread waits for a scheduler tick at every parallel launch: measured here,
@@ -104,8 +117,9 @@ def on_timing_threads(fn: Callable[..., Any]) -> Callable[..., Any]:
     return wrapper
 
 
-def best_time(fn: Callable[[], Any], repeats: int, min_total_s: float = 0.0, max_repeats: int = 50
-              ) -> tuple[float, Any]:
+def best_time(
+    fn: Callable[[], Any], repeats: int, min_total_s: float = 0.0, max_repeats: int = 50
+) -> tuple[float, Any]:
     """(best wall time in s, the last call's result) over at least ``repeats`` calls, continuing (up to
     ``max_repeats``) until the calls add up to ``min_total_s``: short runs get more tries, so a scheduler
     hiccup on a shared machine does not become the measurement. Call ``fn`` once before to warm it."""
@@ -154,8 +168,7 @@ def machine_info() -> dict[str, Any]:
     }
 
 
-def fan(source: Sequence[float], elevations_deg: np.ndarray, azimuth_deg: float = 0.0
-        ) -> tuple[np.ndarray, np.ndarray]:
+def fan(source: Sequence[float], elevations_deg: np.ndarray, azimuth_deg: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Origins (n, 3) m and unit directions (n, 3) of a vertical fan from one source (world frame)."""
     el = np.radians(np.asarray(elevations_deg, float))
     az = math.radians(azimuth_deg)

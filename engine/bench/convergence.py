@@ -40,8 +40,18 @@ PROFILES: dict[str, tuple[str, dict[str, float], str]] = {
     "n2-linear": ("linear_n2", {"n0": 1.0, "alpha": 0.01}, "parabolic"),
 }
 CURVES = ("parabolic", "circular", "n_linear")
-COLUMNS = ["profile", "curve", "epsilon", "layers", "position_error_max", "position_error_median",
-           "arc_length_error_max", "trace_time_s", "crossings_per_ray", "lost"]
+COLUMNS = [
+    "profile",
+    "curve",
+    "epsilon",
+    "layers",
+    "position_error_max",
+    "position_error_median",
+    "arc_length_error_max",
+    "trace_time_s",
+    "crossings_per_ray",
+    "lost",
+]
 
 
 def _trace(mesh: Any, z_levels: np.ndarray, curve: str, origins: np.ndarray, dirs: np.ndarray) -> Any:
@@ -67,10 +77,15 @@ def run(quick: bool) -> Section:
     for key, (kind, params, exact_curve) in PROFILES.items():
         profile = build_profile(kind, c_ref=C_REF, **params)
         z1 = np.array([LO[2], HI[2]])
-        ref = _trace(build_slab_mesh(LO, HI, z1, _m_of_z(profile, CURVE_QUANTITY[exact_curve])), z1, exact_curve,
-                     origins, dirs)
-        levels = {eps: gradient_layers(LO[2], HI[2], _m_of_z(profile, "n"), epsilon=eps, d_min=DEFAULT_SLAB_D_MIN,
-                                       d_max=HI[2] - LO[2]) for eps in epsilons}
+        ref = _trace(
+            build_slab_mesh(LO, HI, z1, _m_of_z(profile, CURVE_QUANTITY[exact_curve])), z1, exact_curve, origins, dirs
+        )
+        levels = {
+            eps: gradient_layers(
+                LO[2], HI[2], _m_of_z(profile, "n"), epsilon=eps, d_min=DEFAULT_SLAB_D_MIN, d_max=HI[2] - LO[2]
+            )
+            for eps in epsilons
+        }
         for curve in CURVES:
             for eps in epsilons:
                 mesh = build_slab_mesh(LO, HI, levels[eps], _m_of_z(profile, CURVE_QUANTITY[curve]))
@@ -80,27 +95,46 @@ def run(quick: bool) -> Section:
                 elapsed = time.perf_counter() - t0
                 perr = np.linalg.norm(res.position - ref.position, axis=1) / (C_REF * T_END)
                 serr = np.abs(res.length_m - ref.length_m) / ref.length_m
-                table.add(profile=key, curve=curve, epsilon=eps, layers=mesh.n_cells,
-                          position_error_max=float(perr.max()), position_error_median=float(np.median(perr)),
-                          arc_length_error_max=float(serr.max()), trace_time_s=elapsed,
-                          crossings_per_ray=float(res.crossings.mean()), lost=res.status_counts()["lost"])
+                table.add(
+                    profile=key,
+                    curve=curve,
+                    epsilon=eps,
+                    layers=mesh.n_cells,
+                    position_error_max=float(perr.max()),
+                    position_error_median=float(np.median(perr)),
+                    arc_length_error_max=float(serr.max()),
+                    trace_time_s=elapsed,
+                    crossings_per_ray=float(res.crossings.mean()),
+                    lost=res.status_counts()["lost"],
+                )
     sec = Section("convergence", "Convergence of the three curves (Fig. 3)")
     sec.text.append(
         f"{count} rays, 10 s, slab meshes sized by the paper's gradient rule eps = |grad k| d^2/4. Reference: the "
         "exact curve for each profile traced through one slab (the closed form; equal to DOP853 to 1e-9 of the "
         "path, tests/engine/test_traversal_exact.py). A curve matching its profile stays at the rounding level "
         "at every eps; the other two converge as eps falls (5-10x per decade of eps in the full run; a linear "
-        "model of m over a layer of thickness d errs by O(d^2) = O(eps)).")
+        "model of m over a layer of thickness d errs by O(d^2) = O(eps))."
+    )
     sec.tables.append(table)
     panels = []
-    for metric, label in (("position_error_max", "worst relative position error"),
-                          ("arc_length_error_max", "worst relative arc-length error")):
+    for metric, label in (
+        ("position_error_max", "worst relative position error"),
+        ("arc_length_error_max", "worst relative arc-length error"),
+    ):
         for key in PROFILES:
             series = []
             for curve in CURVES:
                 rs = [r for r in table.rows if r["profile"] == key and r["curve"] == curve]
                 series.append(Series(curve, [r["epsilon"] for r in rs], [max(r[metric], 1e-16) for r in rs]))
-            panels.append({"title": f"{key}: {label.split()[2]}", "xlabel": "epsilon", "ylabel": label,
-                           "xlog": True, "ylog": True, "series": series})
+            panels.append(
+                {
+                    "title": f"{key}: {label.split()[2]}",
+                    "xlabel": "epsilon",
+                    "ylabel": label,
+                    "xlog": True,
+                    "ylog": True,
+                    "series": series,
+                }
+            )
     sec.plots.append(Plot("fig3_convergence", "Convergence to the closed forms as epsilon decreases", panels))
     return sec

@@ -42,28 +42,48 @@ ORDER = {"euler": 1, "rk4": 4}
 # Errors at or below this (relative) are at the DOP853 reference's own level: nothing left to converge.
 REFERENCE_LEVEL = 1e-9
 
-COLUMNS = ["case", "method", "media", "setting", "rays", "cells", "error_max", "error_median", "trace_time_s",
-           "steps_per_ray", "crossings_per_ray", "evaluations_per_ray", "restarts_per_ray", "rejected_per_ray",
-           "lost", "finite", "status"]
+COLUMNS = [
+    "case",
+    "method",
+    "media",
+    "setting",
+    "rays",
+    "cells",
+    "error_max",
+    "error_median",
+    "trace_time_s",
+    "steps_per_ray",
+    "crossings_per_ray",
+    "evaluations_per_ray",
+    "restarts_per_ray",
+    "rejected_per_ray",
+    "lost",
+    "finite",
+    "status",
+]
 
 
 def rows_for(case: StratifiedCase, quick: bool) -> list[tuple[str, str, float]]:
     """(method, media, setting) rows of one case; steps scale with the case's path length c_ref t."""
     p = case.norm_m
     if quick:
-        return ([("analytic", "mesh", d) for d in (1e-5, 3e-6, 1e-6, 1e-8)]
-                + [("euler", "exact", p / 1000)]
-                + [("rk4", "exact", p / f) for f in (1000, 4000)]
-                + [("dopri5", "exact", t) for t in (1e-3, 1e-4, 1e-8)]
-                + [("dopri5", "mesh", t) for t in (1e-6, 1e-8)])
-    return ([("analytic", "mesh", d) for d in (1e-4, 3e-5, 1e-5, 3e-6, 1e-6, 3e-7, 1e-7, 1e-8, 1e-9)]
-            + [("analytic_circular", "mesh", d) for d in (1e-5, 1e-6, 1e-7, 1e-8)]
-            + [("euler", "exact", p / f) for f in (250, 1000, 4000)]
-            + [("rk4", "exact", p / f) for f in (125, 250, 500, 1000, 4000, 16000)]
-            + [("dopri5", "exact", t) for t in (1e-3, 1e-4, 1e-5, 1e-6, 1e-8, 1e-10, 1e-12)]
-            + [("euler", "mesh", p / 1000)]
-            + [("rk4", "mesh", p / f) for f in (250, 1000, 4000)]
-            + [("dopri5", "mesh", t) for t in (1e-3, 1e-4, 1e-5, 1e-6, 1e-8, 1e-10)])
+        return (
+            [("analytic", "mesh", d) for d in (1e-5, 3e-6, 1e-6, 1e-8)]
+            + [("euler", "exact", p / 1000)]
+            + [("rk4", "exact", p / f) for f in (1000, 4000)]
+            + [("dopri5", "exact", t) for t in (1e-3, 1e-4, 1e-8)]
+            + [("dopri5", "mesh", t) for t in (1e-6, 1e-8)]
+        )
+    return (
+        [("analytic", "mesh", d) for d in (1e-4, 3e-5, 1e-5, 3e-6, 1e-6, 3e-7, 1e-7, 1e-8, 1e-9)]
+        + [("analytic_circular", "mesh", d) for d in (1e-5, 1e-6, 1e-7, 1e-8)]
+        + [("euler", "exact", p / f) for f in (250, 1000, 4000)]
+        + [("rk4", "exact", p / f) for f in (125, 250, 500, 1000, 4000, 16000)]
+        + [("dopri5", "exact", t) for t in (1e-3, 1e-4, 1e-5, 1e-6, 1e-8, 1e-10, 1e-12)]
+        + [("euler", "mesh", p / 1000)]
+        + [("rk4", "mesh", p / f) for f in (250, 1000, 4000)]
+        + [("dopri5", "mesh", t) for t in (1e-3, 1e-4, 1e-5, 1e-6, 1e-8, 1e-10)]
+    )
 
 
 def _family(row: dict[str, Any]) -> str:
@@ -77,20 +97,25 @@ def speedups(rows: Sequence[dict[str, Any]], targets: Sequence[float] = TARGETS)
     for case in dict.fromkeys(r["case"] for r in rows):
         crow = [r for r in rows if r["case"] == case]
         for target in targets:
+
             def cheapest(cands: list[dict[str, Any]], target: float = target) -> dict[str, Any] | None:
                 ok = [r for r in cands if r["error_max"] <= target and r["status"].get("lost", 0) == 0]
                 return min(ok, key=lambda r: r["trace_time_s"]) if ok else None
 
             ana = cheapest([r for r in crow if r["method"] == "analytic"])
-            entry: dict[str, Any] = {"case": case, "target": target,
-                                     "analytic_setting": ana["setting"] if ana else "not reached",
-                                     "analytic_time_s": ana["trace_time_s"] if ana else math.nan}
+            entry: dict[str, Any] = {
+                "case": case,
+                "target": target,
+                "analytic_setting": ana["setting"] if ana else "not reached",
+                "analytic_time_s": ana["trace_time_s"] if ana else math.nan,
+            }
             for media in ("exact", "mesh"):
                 base = cheapest([r for r in crow if r["method"] not in ANALYTIC_CURVES and r["media"] == media])
                 entry[f"best_{media}"] = f"{base['method']} {base['setting']}" if base else "not reached"
                 entry[f"best_{media}_time_s"] = base["trace_time_s"] if base else math.nan
-                entry[f"speedup_vs_{media}"] = (base["trace_time_s"] / ana["trace_time_s"]
-                                                if base and ana and ana["trace_time_s"] > 0 else math.nan)
+                entry[f"speedup_vs_{media}"] = (
+                    base["trace_time_s"] / ana["trace_time_s"] if base and ana and ana["trace_time_s"] > 0 else math.nan
+                )
             out.append(entry)
     return out
 
@@ -117,11 +142,20 @@ def stalls(rows: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
             ratio = rs[0]["tolerance"] / rs[-1]["tolerance"]
             expected = ratio ** ORDER.get(method, 1)
             gain = errs[0] / errs[-1] if errs[-1] > 0 else math.inf
-            stalled = (len(rs) >= 2 and errs[-1] > REFERENCE_LEVEL and ratio > 1.0
-                       and not gain >= math.sqrt(expected))
-            out.append({"case": case, "family": fam, "settings": len(rs), "best_error": errs[best],
-                        "best_setting": rs[best]["setting"], "finest_error": errs[-1],
-                        "expected_gain": expected, "gain": gain, "stalls": stalled})
+            stalled = len(rs) >= 2 and errs[-1] > REFERENCE_LEVEL and ratio > 1.0 and not gain >= math.sqrt(expected)
+            out.append(
+                {
+                    "case": case,
+                    "family": fam,
+                    "settings": len(rs),
+                    "best_error": errs[best],
+                    "best_setting": rs[best]["setting"],
+                    "finest_error": errs[-1],
+                    "expected_gain": expected,
+                    "gain": gain,
+                    "stalls": stalled,
+                }
+            )
     return out
 
 
@@ -129,17 +163,21 @@ def _why(fam: str, stalled: bool, best: float, evidence: str = "") -> str:
     if not stalled:
         return "still converging at its finest setting"
     if "(mesh)" in fam and not fam.startswith("analytic"):
-        return ("mesh media: grad m jumps at every cell face (piecewise-constant gradient) and the integrator "
-                "steps across faces without stopping at them, so each step holding a face loses the method's "
-                "order and the error estimate misjudges the kink (steps rejected near faces); tighter "
-                "settings mostly add steps, not accuracy" + (f" ({evidence})" if evidence else ""))
+        return (
+            "mesh media: grad m jumps at every cell face (piecewise-constant gradient) and the integrator "
+            "steps across faces without stopping at them, so each step holding a face loses the method's "
+            "order and the error estimate misjudges the kink (steps rejected near faces); tighter "
+            "settings mostly add steps, not accuracy" + (f" ({evidence})" if evidence else "")
+        )
     if fam.startswith("analytic"):
         return "the mesh error has reached the reference level"
     if fam.startswith("euler"):
         return "first order: 4x shorter steps give at most 4x less error"
-    return ("exact media: the error stops falling above the reference level; this bench does not isolate why "
-            "(candidates: the boundary landings at reflections, the unrenormalised |p| = n drift; see the "
-            "'+renorm' rows of baselines_probe)")
+    return (
+        "exact media: the error stops falling above the reference level; this bench does not isolate why "
+        "(candidates: the boundary landings at reflections, the unrenormalised |p| = n drift; see the "
+        "'+renorm' rows of baselines_probe)"
+    )
 
 
 def _evidence(rows: Sequence[dict[str, Any]], entry: dict[str, Any]) -> str:
@@ -149,8 +187,7 @@ def _evidence(rows: Sequence[dict[str, Any]], entry: dict[str, Any]) -> str:
     if not fam_rows or "(mesh)" not in entry["family"]:
         return ""
     finest = min(fam_rows, key=lambda r: r["tolerance"])
-    ana = [r for r in rows if r["case"] == entry["case"] and r["method"] == "analytic"
-           and r["tolerance"] == MESH_DELTA]
+    ana = [r for r in rows if r["case"] == entry["case"] and r["method"] == "analytic" and r["tolerance"] == MESH_DELTA]
     parts = []
     if isinstance(finest.get("rejected_per_ray"), float):
         parts.append(f"{finest['rejected_per_ray']:.0f} rejected steps per ray at {finest['setting']}")
@@ -167,24 +204,43 @@ def run(quick: bool, cases: Sequence[str] | None = None) -> Section:
     rows: list[dict[str, Any]] = []
     for key in keys:
         case = CASES[key]
-        rows += run_rows(case, rows_for(case, quick), count, repeats, meshes=MeshCache(case),
-                         min_total_s=0.05 if quick else 0.3)
+        rows += run_rows(
+            case, rows_for(case, quick), count, repeats, meshes=MeshCache(case), min_total_s=0.05 if quick else 0.3
+        )
     sec = Section("error_vs_time", "Error against run time (Fig. 4/5)")
     table = Table("error_vs_time", "Error against trace time", COLUMNS)
     for r in rows:
-        table.add(**{c: r.get(c, "") for c in COLUMNS if c not in ("lost", "status")},
-                  lost=r["status"].get("lost", 0),
-                  status="; ".join(f"{k} {v}" for k, v in r["status"].items() if v))
+        table.add(
+            **{c: r.get(c, "") for c in COLUMNS if c not in ("lost", "status")},
+            lost=r["status"].get("lost", 0),
+            status="; ".join(f"{k} {v}" for k, v in r["status"].items() if v),
+        )
     sp = speedups(rows)
-    sp_table = Table("speedup", "Time to reach a target error, and the analytic tracer's speed-up",
-                     list(sp[0].keys()) if sp else ["case"])
+    sp_table = Table(
+        "speedup",
+        "Time to reach a target error, and the analytic tracer's speed-up",
+        list(sp[0].keys()) if sp else ["case"],
+    )
     for e in sp:
         sp_table.add(**e)
     st = stalls(rows)
-    st_table = Table("stalls", "Where each method stops converging (gain = coarsest / finest error; expected from "
-                     "the setting ratio and the method's order)",
-                     ["case", "family", "settings", "best_error", "best_setting", "finest_error", "gain",
-                      "expected_gain", "stalls", "why"])
+    st_table = Table(
+        "stalls",
+        "Where each method stops converging (gain = coarsest / finest error; expected from "
+        "the setting ratio and the method's order)",
+        [
+            "case",
+            "family",
+            "settings",
+            "best_error",
+            "best_setting",
+            "finest_error",
+            "gain",
+            "expected_gain",
+            "stalls",
+            "why",
+        ],
+    )
     for e in st:
         st_table.add(**e, why=_why(e["family"], e["stalls"], e["best_error"], _evidence(rows, e)))
     sec.tables += [table, sp_table, st_table]
@@ -194,7 +250,8 @@ def run(quick: bool, cases: Sequence[str] | None = None) -> Section:
         "against DOP853 at rtol 1e-13 in sigma. `exact` media: the baseline evaluates the closed-form profile "
         "(possible only for analytic profiles: an upper bound on what a numerical tracer can do); `mesh` media: "
         "the same per-cell linear slab media as the analytic tracer (delta 1e-8), i.e. what a numerical tracer "
-        "gets for sampled, gridded or 3D media.")
+        "gets for sampled, gridded or 3D media."
+    )
     head = next((e for e in sp if e["case"] == HEADLINE_CASE and e["target"] == HEADLINE_TARGET), None)
     if head is not None:
         sec.text.append(
@@ -202,12 +259,16 @@ def run(quick: bool, cases: Sequence[str] | None = None) -> Section:
             f"{fmt(head['analytic_time_s'])} s ({head['analytic_setting']}); best baseline on the same mesh media "
             f"{head['best_mesh']} {fmt(head['best_mesh_time_s'])} s -> **{fmt(head['speedup_vs_mesh'])}x**; "
             f"best baseline on the exact closed-form media {head['best_exact']} {fmt(head['best_exact_time_s'])} s "
-            f"-> **{fmt(head['speedup_vs_exact'])}x** (target: >= 10x).")
+            f"-> **{fmt(head['speedup_vs_exact'])}x** (target: >= 10x)."
+        )
     stalled = [e for e in st if e["stalls"] and not e["family"].startswith("analytic")]
     if stalled:
-        sec.text.append("Baselines that stop converging (less than the square root of their expected gain from the "
-                        "coarsest to the finest setting): " + "; ".join(
-                            f"{e['case']} {e['family']} at {fmt(e['best_error'])}" for e in stalled) + ".")
+        sec.text.append(
+            "Baselines that stop converging (less than the square root of their expected gain from the "
+            "coarsest to the finest setting): "
+            + "; ".join(f"{e['case']} {e['family']} at {fmt(e['best_error'])}" for e in stalled)
+            + "."
+        )
     panels = []
     for key in keys:
         series = []
@@ -217,12 +278,25 @@ def run(quick: bool, cases: Sequence[str] | None = None) -> Section:
                 fams.setdefault(_family(r), []).append(r)
         for fam, rs in fams.items():
             rs = sorted(rs, key=lambda r: r["trace_time_s"])
-            series.append(Series(fam, [max(r["trace_time_s"], 1e-6) for r in rs],
-                                 [max(r["error_max"], 1e-16) for r in rs],
-                                 marker="s" if fam.startswith("analytic") else "o",
-                                 linestyle="-" if "(mesh)" in fam else "--"))
-        panels.append({"title": key, "xlabel": "trace time (s)", "ylabel": "worst relative position error",
-                       "xlog": True, "ylog": True, "series": series,
-                       "hline": HEADLINE_TARGET if key == HEADLINE_CASE else None})
+            series.append(
+                Series(
+                    fam,
+                    [max(r["trace_time_s"], 1e-6) for r in rs],
+                    [max(r["error_max"], 1e-16) for r in rs],
+                    marker="s" if fam.startswith("analytic") else "o",
+                    linestyle="-" if "(mesh)" in fam else "--",
+                )
+            )
+        panels.append(
+            {
+                "title": key,
+                "xlabel": "trace time (s)",
+                "ylabel": "worst relative position error",
+                "xlog": True,
+                "ylog": True,
+                "series": series,
+                "hline": HEADLINE_TARGET if key == HEADLINE_CASE else None,
+            }
+        )
     sec.plots.append(Plot("fig4_5_error_vs_time", "Error against trace time", panels))
     return sec

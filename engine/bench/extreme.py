@@ -86,24 +86,51 @@ def _slabs(profile: Profile, lo: tuple, hi: tuple, d_min: float | None = None) -
     return build_media(profile, "parabolic", solver, np.asarray(lo, float), np.asarray(hi, float))
 
 
-def _stratified(key: str, description: str, params: dict[str, float], source: tuple, elevations: np.ndarray,
-                t_end: float, max_reflections: int, lo: tuple = ACOUSTIC_LO, hi: tuple = ACOUSTIC_HI,
-                reference: str = "dop853") -> ExtremeCase:
+def _stratified(
+    key: str,
+    description: str,
+    params: dict[str, float],
+    source: tuple,
+    elevations: np.ndarray,
+    t_end: float,
+    max_reflections: int,
+    lo: tuple = ACOUSTIC_LO,
+    hi: tuple = ACOUSTIC_HI,
+    reference: str = "dop853",
+) -> ExtremeCase:
     sc = StratifiedCase(key, "log", params, t_end, lo, hi, source=source, max_reflections=max_reflections)
     profile = sc.profile()
     med = _slabs(profile, lo, hi)
     o, d = fan(source, elevations)
     ref: Callable[[], np.ndarray] | None = None
     if reference == "dop853":
+
         def ref() -> np.ndarray:
             return reference_positions(d, case=sc)
-    return ExtremeCase(key, description, profile, med.mesh, "parabolic", o, d, med.locate(o), t_end, max_reflections,
-                       lo, hi, ref, "DOP853 (sigma, rtol 1e-13)" if ref is not None else "", stats=dict(med.stats))
+
+    return ExtremeCase(
+        key,
+        description,
+        profile,
+        med.mesh,
+        "parabolic",
+        o,
+        d,
+        med.locate(o),
+        t_end,
+        max_reflections,
+        lo,
+        hi,
+        ref,
+        "DOP853 (sigma, rtol 1e-13)" if ref is not None else "",
+        stats=dict(med.stats),
+    )
 
 
 def vertical_reference(profile: Profile, z0: float, up: bool, t_end: float) -> float:
     """Height (m) after ``t_end`` s of a vertical ray from z0 in a stratified profile, reflecting at z = 0:
     t(z) = integral dz / c(z) (scipy quad), inverted by brentq."""
+
     def c(z: float) -> float:
         return float(profile.sound_speed(np.array([[0.0, 0.0, z]]))[0])
 
@@ -121,8 +148,9 @@ def vertical_reference(profile: Profile, z0: float, up: bool, t_end: float) -> f
     return brentq(lambda zz: t_between(z, zz) - t_left, z, hi, xtol=1e-12, rtol=1e-15)
 
 
-def parabola_reference(origins: np.ndarray, directions: np.ndarray, alpha: float, t_end: float,
-                       c_ref: float = C_REF) -> np.ndarray:
+def parabola_reference(
+    origins: np.ndarray, directions: np.ndarray, alpha: float, t_end: float, c_ref: float = C_REF
+) -> np.ndarray:
     """End points (n, 3) m of rays in n^2 = 1 + alpha z over a reflecting ground z = 0 (physics.md section 2):
     x(sigma) = x0 + p0 sigma + g sigma^2 / 4, g = (0, 0, alpha), t(sigma) the exact cubic; ground hits from the
     quadratic z(sigma) = 0, reflected p_z -> -p_z; the time cubic inverted by brentq."""
@@ -161,15 +189,17 @@ def parabola_reference(origins: np.ndarray, directions: np.ndarray, alpha: float
 def _tet_mesh(interior: np.ndarray, seed: int = 0) -> Any:
     from bentray.engine.mesh.tets import build_tet_mesh
 
-    return build_tet_mesh(np.array(TET_LO), np.array(TET_HI), interior,
-                          lambda p: 1.0 + ALPHA_N2 * np.asarray(p)[:, 2], seed=seed)
+    return build_tet_mesh(
+        np.array(TET_LO), np.array(TET_HI), interior, lambda p: 1.0 + ALPHA_N2 * np.asarray(p)[:, 2], seed=seed
+    )
 
 
 def _fcc_mesh() -> Any:
     from bentray.engine.mesh.fcc import fcc_resample
 
-    pts = fcc_resample(np.array(TET_LO), np.array(TET_HI), lambda p: np.full(len(p), TET_SPACING),
-                       d_min=TET_SPACING, d_max=TET_SPACING)
+    pts = fcc_resample(
+        np.array(TET_LO), np.array(TET_HI), lambda p: np.full(len(p), TET_SPACING), d_min=TET_SPACING, d_max=TET_SPACING
+    )
     return _tet_mesh(pts)
 
 
@@ -183,8 +213,24 @@ def _tet_case(key: str, description: str, tet: Any, source: np.ndarray, count: i
         return parabola_reference(o, dirs, ALPHA_N2, TET_T_END)
 
     stats = {"cells": tet.cells.n_cells, "min_dihedral_deg": min_dihedral_deg(tet.points, tet.tets)}
-    return ExtremeCase(key, description, profile, tet.cells, "parabolic", o, dirs, cells, TET_T_END, 20, TET_LO,
-                       TET_HI, ref, "closed-form parabola", mesh_media_baselines=True, stats=stats)
+    return ExtremeCase(
+        key,
+        description,
+        profile,
+        tet.cells,
+        "parabolic",
+        o,
+        dirs,
+        cells,
+        TET_T_END,
+        20,
+        TET_LO,
+        TET_HI,
+        ref,
+        "closed-form parabola",
+        mesh_media_baselines=True,
+        stats=stats,
+    )
 
 
 def _vertex_edge_face(tet: Any) -> dict[str, np.ndarray]:
@@ -194,8 +240,11 @@ def _vertex_edge_face(tet: Any) -> dict[str, np.ndarray]:
     cell = int(np.flatnonzero(np.any(tet.tets == k, axis=1))[0])
     others = [v for v in tet.tets[cell] if v != k]
     p = tet.points
-    return {"vertex": p[k].copy(), "edge": 0.5 * (p[k] + p[others[0]]),
-            "face": (p[k] + p[others[0]] + p[others[1]]) / 3.0}
+    return {
+        "vertex": p[k].copy(),
+        "edge": 0.5 * (p[k] + p[others[0]]),
+        "face": (p[k] + p[others[0]] + p[others[1]]) / 3.0,
+    }
 
 
 def min_dihedral_deg(points: np.ndarray, tets: np.ndarray) -> float:
@@ -221,17 +270,40 @@ def build_case(key: str, quick: bool = False) -> ExtremeCase:
     el = np.linspace(-45.0, 45.0, n_fan)
     ald = {"c0": 340.0, "b": 1.0, "z_g": 1.0}
     if key == "grazing_alu":
-        return _stratified(key, "source on the ground, elevation 0 / 1e-3 deg, A-LU", {"c0": 340.0, "b": -1.0,
-                           "z_g": 1.0}, (0.0, 0.0, 0.0), np.array([0.0, 1e-3]), 10.0, 50)
+        return _stratified(
+            key,
+            "source on the ground, elevation 0 / 1e-3 deg, A-LU",
+            {"c0": 340.0, "b": -1.0, "z_g": 1.0},
+            (0.0, 0.0, 0.0),
+            np.array([0.0, 1e-3]),
+            10.0,
+            50,
+        )
     if key == "grazing_ald":
-        case = _stratified(key, "source on the ground, elevation 0 / 1e-3 deg, A-LD (creeping)", ald,
-                           (0.0, 0.0, 0.0), np.array([0.0, 1e-3]), 1.0, 10_000, reference="none")
+        case = _stratified(
+            key,
+            "source on the ground, elevation 0 / 1e-3 deg, A-LD (creeping)",
+            ald,
+            (0.0, 0.0, 0.0),
+            np.array([0.0, 1e-3]),
+            1.0,
+            10_000,
+            reference="none",
+        )
         case.reference = lambda: np.tile([C_REF * 1.0, 0.0, 0.0], (2, 1))
         case.reference_kind = "creeping limit x = c0 t (elevation 0 only)"
         return case
     if key == "along_gradient":
-        case = _stratified(key, "vertical rays up / down, A-LD", ald, (0.0, 0.0, 1.5), np.array([90.0, -90.0]), 5.0,
-                           50, reference="none")
+        case = _stratified(
+            key,
+            "vertical rays up / down, A-LD",
+            ald,
+            (0.0, 0.0, 1.5),
+            np.array([90.0, -90.0]),
+            5.0,
+            50,
+            reference="none",
+        )
         case.directions = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]])  # exactly vertical
         prof = case.profile
         case.reference = lambda: np.array([[0.0, 0.0, vertical_reference(prof, 1.5, up, 5.0)] for up in (True, False)])
@@ -247,40 +319,117 @@ def build_case(key: str, quick: bool = False) -> ExtremeCase:
             x[:, 2] = np.abs(x[:, 2])
             return x
 
-        return ExtremeCase(key, "homogeneous air (one box cell)", profile, med.mesh, "parabolic", o, d, med.locate(o),
-                           10.0, 50, ACOUSTIC_LO, ACOUSTIC_HI, mirror, "straight lines and mirror images",
-                           stats=dict(med.stats))
+        return ExtremeCase(
+            key,
+            "homogeneous air (one box cell)",
+            profile,
+            med.mesh,
+            "parabolic",
+            o,
+            d,
+            med.locate(o),
+            10.0,
+            50,
+            ACOUSTIC_LO,
+            ACOUSTIC_HI,
+            mirror,
+            "straight lines and mirror images",
+            stats=dict(med.stats),
+        )
     if key == "gradient_100x":
-        return _stratified(key, "A-LD with b = 100 m/s (100x), 1 s", {"c0": 340.0, "b": 100.0, "z_g": 1.0},
-                           (0.0, 0.0, 1.5), el, 1.0, 10_000)
+        return _stratified(
+            key,
+            "A-LD with b = 100 m/s (100x), 1 s",
+            {"c0": 340.0, "b": 100.0, "z_g": 1.0},
+            (0.0, 0.0, 1.5),
+            el,
+            1.0,
+            10_000,
+        )
     if key == "log_zg_0.01":
-        return _stratified(key, "A-LD with z_g = 0.01 m (stiff near the ground)", {"c0": 340.0, "b": 1.0,
-                           "z_g": 0.01}, (0.0, 0.0, 1.5), el, 10.0, 200)
+        return _stratified(
+            key,
+            "A-LD with z_g = 0.01 m (stiff near the ground)",
+            {"c0": 340.0, "b": 1.0, "z_g": 0.01},
+            (0.0, 0.0, 1.5),
+            el,
+            10.0,
+            200,
+        )
     if key in ("source_on_vertex", "source_on_edge", "source_on_face"):
         tet = _fcc_mesh()
         where = key.rsplit("_", 1)[1]
-        return _tet_case(key, f"source exactly on a mesh {where} (Delaunay tets, n^2 linear)", tet,
-                         _vertex_edge_face(tet)[where], 14 if quick else 26)
+        return _tet_case(
+            key,
+            f"source exactly on a mesh {where} (Delaunay tets, n^2 linear)",
+            tet,
+            _vertex_edge_face(tet)[where],
+            14 if quick else 26,
+        )
     if key == "sliver_cells":
-        ax = [np.arange(lo + TET_SPACING, hi - 0.5 * TET_SPACING, TET_SPACING) for lo, hi in zip(TET_LO, TET_HI,
-                                                                                                 strict=True)]
+        ax = [
+            np.arange(lo + TET_SPACING, hi - 0.5 * TET_SPACING, TET_SPACING)
+            for lo, hi in zip(TET_LO, TET_HI, strict=True)
+        ]
         cubic = np.stack(np.meshgrid(*ax, indexing="ij"), axis=-1).reshape(-1, 3)
         tet = _tet_mesh(cubic)
-        return _tet_case(key, "Delaunay of a jittered cubic lattice (slivers)", tet, np.array([1.0, 2.0, 101.0]),
-                         14 if quick else 26)
+        return _tet_case(
+            key, "Delaunay of a jittered cubic lattice (slivers)", tet, np.array([1.0, 2.0, 101.0]), 14 if quick else 26
+        )
     if key == "domain_10km":
-        return _stratified(key, "A-LD over 10 km (30 s), 10 km x 8 km domain", ald, (0.0, 0.0, 1.5), el, 30.0, 200,
-                           lo=(-50.0, -50.0, 0.0), hi=(10_300.0, 50.0, 8000.0))
+        return _stratified(
+            key,
+            "A-LD over 10 km (30 s), 10 km x 8 km domain",
+            ald,
+            (0.0, 0.0, 1.5),
+            el,
+            30.0,
+            200,
+            lo=(-50.0, -50.0, 0.0),
+            hi=(10_300.0, 50.0, 8000.0),
+        )
     raise ValueError(f"unknown extreme case {key!r}; expected one of {list(CASE_BUILDERS)}")
 
 
-CASE_BUILDERS = ("grazing_alu", "grazing_ald", "along_gradient", "zero_gradient", "gradient_100x", "log_zg_0.01",
-                 "source_on_vertex", "source_on_edge", "source_on_face", "sliver_cells", "domain_10km")
-QUICK_CASES = ("grazing_alu", "grazing_ald", "along_gradient", "zero_gradient", "gradient_100x", "log_zg_0.01",
-               "source_on_vertex", "sliver_cells")
+CASE_BUILDERS = (
+    "grazing_alu",
+    "grazing_ald",
+    "along_gradient",
+    "zero_gradient",
+    "gradient_100x",
+    "log_zg_0.01",
+    "source_on_vertex",
+    "source_on_edge",
+    "source_on_face",
+    "sliver_cells",
+    "domain_10km",
+)
+QUICK_CASES = (
+    "grazing_alu",
+    "grazing_ald",
+    "along_gradient",
+    "zero_gradient",
+    "gradient_100x",
+    "log_zg_0.01",
+    "source_on_vertex",
+    "sliver_cells",
+)
 
-COLUMNS = ["case", "method", "media", "rays", "error_max", "error_kind", "trace_time_s", "finite", "lost",
-           "below_ground", "status", "nudges", "note"]
+COLUMNS = [
+    "case",
+    "method",
+    "media",
+    "rays",
+    "error_max",
+    "error_kind",
+    "trace_time_s",
+    "finite",
+    "lost",
+    "below_ground",
+    "status",
+    "nudges",
+    "note",
+]
 # A ray end point lower than this below the ground z = 0 (every case's ground) went through the ground.
 BELOW_GROUND_TOL_M = 1e-6
 
@@ -294,13 +443,19 @@ def trace_case(case: ExtremeCase, method: str, media: str) -> tuple[Any, float]:
 
     kw = {"max_time_s": case.max_time_s, "max_reflections": case.max_reflections}
     if method == "analytic":
+
         def go(n: int | None = None) -> Any:
             s = slice(None) if n is None else slice(0, n)
-            return trace(case.mesh, case.curve, C_REF, case.origins[s], case.directions[s], case.start_cells[s],
-                         **kw)
+            return trace(case.mesh, case.curve, C_REF, case.origins[s], case.directions[s], case.start_cells[s], **kw)
     else:
-        nkw: dict[str, Any] = dict(kw, c_ref=C_REF, domain_min=np.asarray(case.domain_min, float),
-                                   domain_max=np.asarray(case.domain_max, float), tolerance=1e-9, step_m=0.5)
+        nkw: dict[str, Any] = dict(
+            kw,
+            c_ref=C_REF,
+            domain_min=np.asarray(case.domain_min, float),
+            domain_max=np.asarray(case.domain_max, float),
+            tolerance=1e-9,
+            step_m=0.5,
+        )
         if media == "mesh":
             nkw.update(mesh=case.mesh, quantity="n2")
         else:
@@ -309,8 +464,10 @@ def trace_case(case: ExtremeCase, method: str, media: str) -> tuple[Any, float]:
         def go(n: int | None = None) -> Any:
             s = slice(None) if n is None else slice(0, n)
             extra = {"start_cells": case.start_cells[s]} if media == "mesh" else {}
-            return trace_numerical(method, media, origins=case.origins[s], directions=case.directions[s], **extra,
-                                   **nkw)[0]
+            return trace_numerical(
+                method, media, origins=case.origins[s], directions=case.directions[s], **extra, **nkw
+            )[0]
+
     go(1)  # compile outside the timing
     t0 = time.perf_counter()
     res = go()
@@ -342,10 +499,21 @@ def run(quick: bool) -> Section:
                 kind = case.reference_kind
             counts = res.status_counts()
             below = int(np.count_nonzero(res.position[:, 2] < -BELOW_GROUND_TOL_M))
-            table.add(case=key, method=method, media=media, rays=res.n_rays, error_max=err, error_kind=kind,
-                      trace_time_s=elapsed, finite=finite, lost=counts["lost"], below_ground=below,
-                      status=status_text(counts),
-                      nudges=int(res.nudges.sum()), note=_note(case))
+            table.add(
+                case=key,
+                method=method,
+                media=media,
+                rays=res.n_rays,
+                error_max=err,
+                error_kind=kind,
+                trace_time_s=elapsed,
+                finite=finite,
+                lost=counts["lost"],
+                below_ground=below,
+                status=status_text(counts),
+                nudges=int(res.nudges.sum()),
+                note=_note(case),
+            )
     sec = Section("extreme", "Stiff and extreme cases")
     sec.text.append(
         "Each case traced once warm (time in s). Errors are worst |x - x_ref| / (c_ref t) against the case's "
@@ -353,20 +521,25 @@ def run(quick: bool) -> Section:
         "profile, and dopri5 on the mesh media for the tet cases. The analytic tracer must lose no ray and never "
         "produce NaN (tests/engine/test_extreme_cases.py asserts it with error bounds). grazing_ald: a ray "
         "launched along the ground under downward refraction bounces ever lower; its error is measured on the "
-        "elevation-0 ray against the creeping limit x = c0 t.")
+        "elevation-0 ray against the creeping limit x = c0 t."
+    )
     ana = [r for r in table.rows if r["method"] == "analytic"]
     problems = [f"{r['case']}: {r['lost']} lost" for r in ana if r["lost"]]
     problems += [f"{r['case']}: non-finite end state" for r in ana if r["finite"] is False]
     problems += [f"{r['case']}: {r['below_ground']} ray(s) ended below the ground" for r in ana if r["below_ground"]]
-    sec.text.append("Analytic tracer: no lost rays, no NaN and no ray below the ground in any case." if not problems
-                    else "Analytic tracer PROBLEMS: " + "; ".join(problems) + ".")
+    sec.text.append(
+        "Analytic tracer: no lost rays, no NaN and no ray below the ground in any case."
+        if not problems
+        else "Analytic tracer PROBLEMS: " + "; ".join(problems) + "."
+    )
     if any(r["case"] == "grazing_ald" and r["below_ground"] for r in ana):
         sec.text.append(
             "grazing_ald: a ray launched exactly along the ground (z = 0, elevation 0) under downward refraction "
             "curves into the ground face with zero slope; the exit search (kernels/roots.py "
             "face_exit_parameter) treats c = 0, b = 0, a > 0 as a tangent contact (no root) and the on-face rule "
             "needs b > 0, so the ray never leaves the cell through the ground and ends below it. The numerical "
-            "baselines slide along the plane and match the creeping limit x = c0 t.")
+            "baselines slide along the plane and match the creeping limit x = c0 t."
+        )
     sec.tables.append(table)
     return sec
 

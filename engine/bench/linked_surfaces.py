@@ -34,9 +34,26 @@ from bentray.engine.tracer import trace
 
 __all__ = ["run", "COLUMNS"]
 
-COLUMNS = ["scene", "resolution", "method", "surface_triangles", "cells", "air_cells", "mesh_build_s", "link_build_s",
-           "build_total_s", "tris_per_cell_mean", "tris_per_cell_max", "rays", "trace_time_s", "crossings_per_ray",
-           "surface_tests_per_ray", "reflections_per_ray", "lost", "note"]
+COLUMNS = [
+    "scene",
+    "resolution",
+    "method",
+    "surface_triangles",
+    "cells",
+    "air_cells",
+    "mesh_build_s",
+    "link_build_s",
+    "build_total_s",
+    "tris_per_cell_mean",
+    "tris_per_cell_max",
+    "rays",
+    "trace_time_s",
+    "crossings_per_ray",
+    "surface_tests_per_ray",
+    "reflections_per_ray",
+    "lost",
+    "note",
+]
 SCENES = ("desert", "christmas")
 KW = {"max_time_s": 10.0, "max_reflections": 3}
 
@@ -57,12 +74,14 @@ def _linked(name: str, resolution: str, sc: SceneMesh) -> tuple[Any, float]:
         z = np.atleast_1d(np.asarray(z, float))
         return profile.quantity("n2", np.column_stack([np.full(len(z), centre[0]), np.full(len(z), centre[1]), z]))
 
-    z_levels = curvature_layers(lo[2], hi[2], m_at_z, delta=VERTICAL_DELTA, d_min=VERTICAL_D_MIN_M,
-                                d_max=float(hi[2] - lo[2]))
+    z_levels = curvature_layers(
+        lo[2], hi[2], m_at_z, delta=VERTICAL_DELTA, d_min=VERTICAL_D_MIN_M, d_max=float(hi[2] - lo[2])
+    )
     medium = get_builtin(name, "medium").surfaces
     spacing = _native_spacing(medium, lo, hi)
-    lm = build_linked_mesh(scene.surfaces, lo, hi, lambda p: profile.quantity("n2", p), horizontal_spacing=spacing,
-                           z_levels=z_levels)
+    lm = build_linked_mesh(
+        scene.surfaces, lo, hi, lambda p: profile.quantity("n2", p), horizontal_spacing=spacing, z_levels=z_levels
+    )
     cell = locate_in_linked_mesh(lm, sc.origins[:1])
     if cell[0] < 0:
         raise SceneUnavailable(f"{name}: the source is not in an air cell of the linked mesh")
@@ -76,35 +95,63 @@ def _rows(name: str, resolution: str, count: int, repeats: int, min_total: float
     sc = build_scene_mesh(name, count, resolution=resolution)
     n = count
     trace(sc.mesh, "parabolic", 340.0, sc.origins[:1], sc.directions[:1], sc.start_cells[:1], **KW)
-    t_emb, res = best_time(lambda: trace(sc.mesh, "parabolic", 340.0, sc.origins, sc.directions, sc.start_cells,
-                                         **KW), repeats, min_total)
+    t_emb, res = best_time(
+        lambda: trace(sc.mesh, "parabolic", 340.0, sc.origins, sc.directions, sc.start_cells, **KW), repeats, min_total
+    )
     nb = sc.stats.get("n_boundary_faces", {})
-    emb = {"scene": name, "resolution": resolution, "method": "embedded", "surface_triangles": sc.surfaces,
-           "cells": sc.mesh.n_cells, "air_cells": sc.mesh.n_cells, "mesh_build_s": sc.build_s, "link_build_s": 0.0,
-           "build_total_s": sc.build_s, "rays": n, "trace_time_s": t_emb,
-           "crossings_per_ray": float(res.crossings.mean()), "surface_tests_per_ray": 0.0,
-           "reflections_per_ray": float(res.reflections.mean()), "lost": res.status_counts()["lost"],
-           "note": f"ground {nb.get('ground', 0)}, walls {nb.get('walls', 0)}, roofs {nb.get('roofs', 0)} mesh faces"}
+    emb = {
+        "scene": name,
+        "resolution": resolution,
+        "method": "embedded",
+        "surface_triangles": sc.surfaces,
+        "cells": sc.mesh.n_cells,
+        "air_cells": sc.mesh.n_cells,
+        "mesh_build_s": sc.build_s,
+        "link_build_s": 0.0,
+        "build_total_s": sc.build_s,
+        "rays": n,
+        "trace_time_s": t_emb,
+        "crossings_per_ray": float(res.crossings.mean()),
+        "surface_tests_per_ray": 0.0,
+        "reflections_per_ray": float(res.reflections.mean()),
+        "lost": res.status_counts()["lost"],
+        "note": f"ground {nb.get('ground', 0)}, walls {nb.get('walls', 0)}, roofs {nb.get('roofs', 0)} mesh faces",
+    }
     t0 = time.perf_counter()
     lm, cell = _linked(name, resolution, sc)
     wall = time.perf_counter() - t0
     starts = np.full(n, cell, dtype=np.int64)
     tests = np.zeros(n, dtype=np.int64)
     trace_linked(lm, "parabolic", 340.0, sc.origins[:1], sc.directions[:1], starts[:1], **KW)
-    t_lnk, rl = best_time(lambda: trace_linked(lm, "parabolic", 340.0, sc.origins, sc.directions, starts,
-                                               surface_tests=tests, **KW), repeats, min_total)
+    t_lnk, rl = best_time(
+        lambda: trace_linked(lm, "parabolic", 340.0, sc.origins, sc.directions, starts, surface_tests=tests, **KW),
+        repeats,
+        min_total,
+    )
     st = lm.stats
-    lnk = {"scene": name, "resolution": resolution, "method": "linked", "surface_triangles": st["triangles"],
-           "cells": st["cells"], "air_cells": st["air_cells"], "mesh_build_s": st["mesh_s"],
-           "link_build_s": st["link_s"] + st["solid_s"] + st["surfaces_s"], "build_total_s": wall,
-           "tris_per_cell_mean": st["tris_per_cell_mean"], "tris_per_cell_max": st["tris_per_cell_max"],
-           "rays": n, "trace_time_s": t_lnk, "crossings_per_ray": float(rl.crossings.mean()),
-           "surface_tests_per_ray": float(tests.mean()), "reflections_per_ray": float(rl.reflections.mean()),
-           "lost": rl.status_counts()["lost"],
-           "note": f"{st['layers']} layers, h {st['horizontal_spacing_m']:.3g} m; linked cells {st['linked_cells']:,}, "
-                   f"{st['tris_per_cell_mean_linked']:.2f} tris each; candidates {st['candidate_pairs']:,} "
-                   f"({st['link_candidates_s']:.2f} s), exact test {st['link_exact_s']:.2f} s, solid cells "
-                   f"{st['solid_s']:.2f} s"}
+    lnk = {
+        "scene": name,
+        "resolution": resolution,
+        "method": "linked",
+        "surface_triangles": st["triangles"],
+        "cells": st["cells"],
+        "air_cells": st["air_cells"],
+        "mesh_build_s": st["mesh_s"],
+        "link_build_s": st["link_s"] + st["solid_s"] + st["surfaces_s"],
+        "build_total_s": wall,
+        "tris_per_cell_mean": st["tris_per_cell_mean"],
+        "tris_per_cell_max": st["tris_per_cell_max"],
+        "rays": n,
+        "trace_time_s": t_lnk,
+        "crossings_per_ray": float(rl.crossings.mean()),
+        "surface_tests_per_ray": float(tests.mean()),
+        "reflections_per_ray": float(rl.reflections.mean()),
+        "lost": rl.status_counts()["lost"],
+        "note": f"{st['layers']} layers, h {st['horizontal_spacing_m']:.3g} m; linked cells {st['linked_cells']:,}, "
+        f"{st['tris_per_cell_mean_linked']:.2f} tris each; candidates {st['candidate_pairs']:,} "
+        f"({st['link_candidates_s']:.2f} s), exact test {st['link_exact_s']:.2f} s, solid cells "
+        f"{st['solid_s']:.2f} s",
+    }
     return [emb, lnk]
 
 
@@ -141,6 +188,7 @@ def run(quick: bool) -> Section:
         "linked = flat layered tets over the lowest surface point at the medium terrain spacing for both "
         "resolutions, with the surface triangles linked to the cells they overlap (exact separating-axis test). "
         "Build times: mesh_build_s is the media mesh, link_build_s the surface triangles, link table and solid-cell "
-        "marking; the linked mesh's cells include those below the ground (solid, never entered).")
+        "marking; the linked mesh's cells include those below the ground (solid, never entered)."
+    )
     sec.tables.append(table)
     return sec

@@ -18,28 +18,109 @@ __all__ = ["write_csv", "draw_plot", "markdown_table", "write_report", "summary_
 
 # README-ready condensed tables: table name -> (heading, columns, row filter)
 SUMMARY: list[tuple[str, str, list[str], Any]] = [
-    ("speedup", "Time to reach a target error (A-LD / A-LU / V-IM / V-SM), analytic vs the best baseline",
-     ["case", "target", "analytic_setting", "analytic_time_s", "best_exact", "best_exact_time_s", "speedup_vs_exact",
-      "best_mesh", "best_mesh_time_s", "speedup_vs_mesh"], lambda r: r["target"] in (1e-3, 1e-4, 1e-5)),
-    ("stalls", "Where the baselines stop converging",
-     ["case", "family", "best_error", "best_setting", "finest_error"],
-     lambda r: r["stalls"] is True and not str(r["family"]).startswith("analytic")),
-    ("fig3_convergence", "Fig. 3: worst relative position / arc-length error against the closed forms",
-     ["profile", "curve", "epsilon", "layers", "position_error_max", "arc_length_error_max"], None),
-    ("table2_same_quality", "Table 2: cost at the same quality",
-     ["case", "target", "config", "reached", "setting", "cells", "segments_per_path", "error_max", "trace_time_s",
-      "time_vs_parabolic_adaptive"], None),
-    ("table3_breakdown", "Table 3: time breakdown",
-     ["scene", "curve", "cells", "rays", "segments", "total_s", "setup_pct", "face_intersections_pct", "advance_pct",
-      "other_pct", "ns_per_segment", "note"], None),
-    ("fig8_scaling", "Fig. 8: scaling",
-     ["study", "variant", "x_value", "cells", "surfaces", "crossings_per_ray", "us_per_ray", "ns_per_crossing", "note"],
-     None),
-    ("throughput", "Throughput",
-     ["scene", "cells", "rays", "threads", "trace_time_s", "crossings_per_ray", "crossings_per_s_per_core",
-      "rays_per_s", "note"], None),
-    ("extreme_cases", "Stiff and extreme cases",
-     ["case", "method", "media", "rays", "error_max", "trace_time_s", "lost", "below_ground", "status", "note"], None),
+    (
+        "speedup",
+        "Time to reach a target error (A-LD / A-LU / V-IM / V-SM), analytic vs the best baseline",
+        [
+            "case",
+            "target",
+            "analytic_setting",
+            "analytic_time_s",
+            "best_exact",
+            "best_exact_time_s",
+            "speedup_vs_exact",
+            "best_mesh",
+            "best_mesh_time_s",
+            "speedup_vs_mesh",
+        ],
+        lambda r: r["target"] in (1e-3, 1e-4, 1e-5),
+    ),
+    (
+        "stalls",
+        "Where the baselines stop converging",
+        ["case", "family", "best_error", "best_setting", "finest_error"],
+        lambda r: r["stalls"] is True and not str(r["family"]).startswith("analytic"),
+    ),
+    (
+        "fig3_convergence",
+        "Fig. 3: worst relative position / arc-length error against the closed forms",
+        ["profile", "curve", "epsilon", "layers", "position_error_max", "arc_length_error_max"],
+        None,
+    ),
+    (
+        "table2_same_quality",
+        "Table 2: cost at the same quality",
+        [
+            "case",
+            "target",
+            "config",
+            "reached",
+            "setting",
+            "cells",
+            "segments_per_path",
+            "error_max",
+            "trace_time_s",
+            "time_vs_parabolic_adaptive",
+        ],
+        None,
+    ),
+    (
+        "table3_breakdown",
+        "Table 3: time breakdown",
+        [
+            "scene",
+            "curve",
+            "cells",
+            "rays",
+            "segments",
+            "total_s",
+            "setup_pct",
+            "face_intersections_pct",
+            "advance_pct",
+            "other_pct",
+            "ns_per_segment",
+            "note",
+        ],
+        None,
+    ),
+    (
+        "fig8_scaling",
+        "Fig. 8: scaling",
+        [
+            "study",
+            "variant",
+            "x_value",
+            "cells",
+            "surfaces",
+            "crossings_per_ray",
+            "us_per_ray",
+            "ns_per_crossing",
+            "note",
+        ],
+        None,
+    ),
+    (
+        "throughput",
+        "Throughput",
+        [
+            "scene",
+            "cells",
+            "rays",
+            "threads",
+            "trace_time_s",
+            "crossings_per_ray",
+            "crossings_per_s_per_core",
+            "rays_per_s",
+            "note",
+        ],
+        None,
+    ),
+    (
+        "extreme_cases",
+        "Stiff and extreme cases",
+        ["case", "method", "media", "rays", "error_max", "trace_time_s", "lost", "below_ground", "status", "note"],
+        None,
+    ),
 ]
 
 # Tables with more rows than this are only linked from report.md (the CSV has them all).
@@ -90,8 +171,14 @@ def draw_plot(plot: Plot, path: Path) -> Path:
             pts = [(x, y) for x, y in zip(s.x, s.y, strict=True) if _plottable(x, y, panel)]
             if not pts:
                 continue
-            ax.plot([p[0] for p in pts], [p[1] for p in pts], marker=s.marker, linestyle=s.linestyle,
-                    label=s.label, markersize=4)
+            ax.plot(
+                [p[0] for p in pts],
+                [p[1] for p in pts],
+                marker=s.marker,
+                linestyle=s.linestyle,
+                label=s.label,
+                markersize=4,
+            )
         if panel.get("xlog"):
             ax.set_xscale("log")
         if panel.get("ylog"):
@@ -122,9 +209,12 @@ def _plottable(x: Any, y: Any, panel: dict[str, Any]) -> bool:
 def summary_markdown(sections: Sequence[Section], machine: dict[str, Any], *, quick: bool) -> str:
     """README-ready condensed tables of a bench run (the sections' key columns and rows)."""
     tables = {t.name: t for sec in sections for t in sec.tables}
-    lines = [f"Measured by `bentray bench{' --quick' if quick else ''}` on {machine.get('cpu')} "
-             f"({machine.get('cores')} cores; comparative timings on 1 numba thread), {machine.get('date_utc')} UTC; "
-             f"numpy {machine.get('numpy')}, numba {machine.get('numba')}.", ""]
+    lines = [
+        f"Measured by `bentray bench{' --quick' if quick else ''}` on {machine.get('cpu')} "
+        f"({machine.get('cores')} cores; comparative timings on 1 numba thread), {machine.get('date_utc')} UTC; "
+        f"numpy {machine.get('numpy')}, numba {machine.get('numba')}.",
+        "",
+    ]
     for sec in sections:
         for para in sec.text:
             if para.startswith("**"):
@@ -138,8 +228,9 @@ def summary_markdown(sections: Sequence[Section], machine: dict[str, Any], *, qu
     return "\n".join(lines)
 
 
-def write_report(out_dir: Path, sections: Sequence[Section], machine: dict[str, Any], *, quick: bool,
-                 command: str, wall_s: float) -> Path:
+def write_report(
+    out_dir: Path, sections: Sequence[Section], machine: dict[str, Any], *, quick: bool, command: str, wall_s: float
+) -> Path:
     """Write every section's tables (CSV), plots (PNG) and ``report.md``; returns the report path."""
     out_dir.mkdir(parents=True, exist_ok=True)
     lines = [
@@ -151,13 +242,16 @@ def write_report(out_dir: Path, sections: Sequence[Section], machine: dict[str, 
         "| --- | --- |",
     ]
     lines += [f"| {k} | {v} |" for k, v in machine.items()]
-    lines += ["", "Timings are wall-clock seconds of warm runs (Numba compiled first), the best of N repeats; "
-              "the machine may be shared, so small differences are noise.", ""]
+    lines += [
+        "",
+        "Timings are wall-clock seconds of warm runs (Numba compiled first), the best of N repeats; "
+        "the machine may be shared, so small differences are noise.",
+        "",
+    ]
     lines.append("Sections: " + ", ".join(f"[{s.title}](#{s.key})" for s in sections))
     lines.append("")
     for sec in sections:
-        lines += [f'<a id="{sec.key}"></a>', f"## {sec.title}", "",
-                  f"_{sec.status}; {sec.wall_s:.1f} s_", ""]
+        lines += [f'<a id="{sec.key}"></a>', f"## {sec.title}", "", f"_{sec.status}; {sec.wall_s:.1f} s_", ""]
         for para in sec.text:
             lines += [para, ""]
         for table in sec.tables:

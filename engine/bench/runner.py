@@ -99,8 +99,9 @@ class BenchOutcome:
     failed: list[str] = field(default_factory=list)
 
 
-def run_bench_sections(out_dir: Path | str, quick: bool, only: Sequence[str] | None = None,
-                       progress: Callable[[str], None] | None = None) -> BenchOutcome:
+def run_bench_sections(
+    out_dir: Path | str, quick: bool, only: Sequence[str] | None = None, progress: Callable[[str], None] | None = None
+) -> BenchOutcome:
     """Run the bench (see module docstring) into ``out_dir``; ``progress`` receives one line per section."""
     names = list(SECTIONS) if not only else list(dict.fromkeys(only))
     unknown = [n for n in names if n not in SECTIONS]
@@ -128,10 +129,13 @@ def run_bench_sections(out_dir: Path | str, quick: bool, only: Sequence[str] | N
             progress(f"{name}: {sec.status} ({sec.wall_s:.1f} s)")
     from bentray.engine.bench.report import write_report
 
-    command = "bentray bench --out " + str(out) + (" --quick" if quick else "") + (
-        " --only " + " ".join(names) if only else "")
-    report = write_report(out, sections, machine, quick=quick, command=command,
-                          wall_s=time.perf_counter() - t_start)
+    command = (
+        "bentray bench --out "
+        + str(out)
+        + (" --quick" if quick else "")
+        + (" --only " + " ".join(names) if only else "")
+    )
+    report = write_report(out, sections, machine, quick=quick, command=command, wall_s=time.perf_counter() - t_start)
     return BenchOutcome(report=report, sections=sections, failed=failed)
 
 

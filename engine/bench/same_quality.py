@@ -41,12 +41,26 @@ CONFIGS: dict[str, tuple[str, str]] = {
     "n-linear + bisection, uniform layers (Cao et al.)": ("n_linear", "uniform"),
     "parabolic + uniform layers": ("parabolic", "uniform"),
 }
-QUICK_CONFIGS = ("parabolic + adaptive mesh", "n-linear + adaptive mesh",
-                 "n-linear + bisection, uniform layers (Cao et al.)", "parabolic + uniform layers")
+QUICK_CONFIGS = (
+    "parabolic + adaptive mesh",
+    "n-linear + adaptive mesh",
+    "n-linear + bisection, uniform layers (Cao et al.)",
+    "parabolic + uniform layers",
+)
 MAX_UNIFORM_LAYERS = 2**17
 SEARCH_COLUMNS = ["case", "config", "setting", "cells", "segments_per_path", "error_max", "trace_time_s", "lost"]
-COLUMNS = ["case", "target", "config", "reached", "setting", "cells", "segments_per_path", "error_max",
-           "trace_time_s", "time_vs_parabolic_adaptive"]
+COLUMNS = [
+    "case",
+    "target",
+    "config",
+    "reached",
+    "setting",
+    "cells",
+    "segments_per_path",
+    "error_max",
+    "trace_time_s",
+    "time_vs_parabolic_adaptive",
+]
 
 
 def _settings(kind: str) -> Iterator[float]:
@@ -89,8 +103,9 @@ def _mesh(case: StratifiedCase, profile: Any, curve: str, kind: str, setting: fl
     return med.mesh, med.locate, label
 
 
-def _search(case: StratifiedCase, config: str, count: int, ref: np.ndarray, finest_target: float,
-            min_total_s: float) -> list[dict[str, Any]]:
+def _search(
+    case: StratifiedCase, config: str, count: int, ref: np.ndarray, finest_target: float, min_total_s: float
+) -> list[dict[str, Any]]:
     curve, kind = CONFIGS[config]
     profile = case.profile()
     origins, dirs = case.fan(count)
@@ -100,15 +115,32 @@ def _search(case: StratifiedCase, config: str, count: int, ref: np.ndarray, fine
         cells = locate(origins)
 
         def run(mesh: Any = mesh, cells: np.ndarray = cells) -> Any:
-            return trace(mesh, curve, case.c_ref, origins, dirs, cells, max_time_s=case.t_end,
-                         max_reflections=case.max_reflections)
+            return trace(
+                mesh,
+                curve,
+                case.c_ref,
+                origins,
+                dirs,
+                cells,
+                max_time_s=case.t_end,
+                max_reflections=case.max_reflections,
+            )
 
         trace(mesh, curve, case.c_ref, origins[:1], dirs[:1], cells[:1], max_time_s=1e-3, max_reflections=1)
         elapsed, res = best_time(run, 1, min_total_s)
         err = float(np.max(np.linalg.norm(res.position - ref, axis=1)) / case.norm_m)
-        rows.append({"case": case.key, "config": config, "setting": label, "cells": mesh.n_cells,
-                     "segments_per_path": float(res.steps.mean()), "error_max": err, "trace_time_s": elapsed,
-                     "lost": res.status_counts()["lost"]})
+        rows.append(
+            {
+                "case": case.key,
+                "config": config,
+                "setting": label,
+                "cells": mesh.n_cells,
+                "segments_per_path": float(res.steps.mean()),
+                "error_max": err,
+                "trace_time_s": elapsed,
+                "lost": res.status_counts()["lost"],
+            }
+        )
         if err <= finest_target:
             break
     return rows
@@ -139,24 +171,37 @@ def run(quick: bool) -> Section:
                 r = hit if hit is not None else found[config][-1]
                 if config == "parabolic + adaptive mesh" and hit is not None:
                     base_time = r["trace_time_s"]
-                table.add(case=key, target=target, config=config, reached=hit is not None, setting=r["setting"],
-                          cells=r["cells"], segments_per_path=r["segments_per_path"], error_max=r["error_max"],
-                          trace_time_s=r["trace_time_s"],
-                          time_vs_parabolic_adaptive=r["trace_time_s"] / base_time if hit is not None else math.nan)
+                table.add(
+                    case=key,
+                    target=target,
+                    config=config,
+                    reached=hit is not None,
+                    setting=r["setting"],
+                    cells=r["cells"],
+                    segments_per_path=r["segments_per_path"],
+                    error_max=r["error_max"],
+                    trace_time_s=r["trace_time_s"],
+                    time_vs_parabolic_adaptive=r["trace_time_s"] / base_time if hit is not None else math.nan,
+                )
     sec = Section("same_quality", "Same-quality comparison (Table 2)")
     sec.text.append(
         f"{count} rays, elevations -45..45 degrees, source 1.5 m, 10 s. For each target the coarsest mesh of each "
         "configuration that reaches it (meshes refined by half decades of delta / epsilon, or doubling uniform "
         "layer counts up to 131,072). `segments per path` = cell steps per ray. `reached = False` rows show the "
-        "finest mesh tried. Trace time: best of the warm runs (more tries for short runs); mesh build excluded.")
+        "finest mesh tried. Trace time: best of the warm runs (more tries for short runs); mesh build excluded."
+    )
     for r in table.rows:
         if r["config"].startswith("n-linear + adaptive") and r["reached"]:
-            par = next(p for p in table.rows if p["case"] == r["case"] and p["target"] == r["target"]
-                       and p["config"] == "parabolic + adaptive mesh")
+            par = next(
+                p
+                for p in table.rows
+                if p["case"] == r["case"] and p["target"] == r["target"] and p["config"] == "parabolic + adaptive mesh"
+            )
             sec.text.append(
                 f"{r['case']} at {r['target']:g}: n-linear + adaptive mesh {fmt(r['segments_per_path'])} segments per "
                 f"path vs parabolic {fmt(par['segments_per_path'])}, {fmt(r['time_vs_parabolic_adaptive'])}x the "
-                "parabolic time (its plane exits are found by bisection).")
+                "parabolic time (its plane exits are found by bisection)."
+            )
     sec.tables += [table, search]
     panels = []
     for key in cases:
@@ -164,7 +209,16 @@ def run(quick: bool) -> Section:
         for config in configs:
             rs = [r for r in search.rows if r["case"] == key and r["config"] == config]
             series.append(Series(config, [r["trace_time_s"] for r in rs], [r["error_max"] for r in rs]))
-        panels.append({"title": key, "xlabel": "trace time (s)", "ylabel": "worst relative position error",
-                       "xlog": True, "ylog": True, "series": series, "hline": min(targets)})
+        panels.append(
+            {
+                "title": key,
+                "xlabel": "trace time (s)",
+                "ylabel": "worst relative position error",
+                "xlog": True,
+                "ylog": True,
+                "series": series,
+                "hline": min(targets),
+            }
+        )
     sec.plots.append(Plot("table2_same_quality", "Error against time per curve / mesh configuration", panels))
     return sec

@@ -26,25 +26,69 @@ from bentray.scenes.schema import Solver
 
 __all__ = ["run"]
 
-COLUMNS = ["study", "variant", "x_value", "cells", "surfaces", "rays", "crossings_per_ray", "reflections_per_ray",
-           "trace_time_s", "us_per_ray", "ns_per_crossing", "lost", "note"]
+COLUMNS = [
+    "study",
+    "variant",
+    "x_value",
+    "cells",
+    "surfaces",
+    "rays",
+    "crossings_per_ray",
+    "reflections_per_ray",
+    "trace_time_s",
+    "us_per_ray",
+    "ns_per_crossing",
+    "lost",
+    "note",
+]
 
 
-def _time(mesh: Any, origins: np.ndarray, dirs: np.ndarray, cells: np.ndarray, t_end: float, max_refl: int,
-          repeats: int, min_total_s: float) -> tuple[float, Any]:
+def _time(
+    mesh: Any,
+    origins: np.ndarray,
+    dirs: np.ndarray,
+    cells: np.ndarray,
+    t_end: float,
+    max_refl: int,
+    repeats: int,
+    min_total_s: float,
+) -> tuple[float, Any]:
     trace(mesh, "parabolic", 340.0, origins[:1], dirs[:1], cells[:1], max_time_s=1e-3, max_reflections=1)
-    return best_time(lambda: trace(mesh, "parabolic", 340.0, origins, dirs, cells, max_time_s=t_end,
-                                   max_reflections=max_refl), repeats, min_total_s)
+    return best_time(
+        lambda: trace(mesh, "parabolic", 340.0, origins, dirs, cells, max_time_s=t_end, max_reflections=max_refl),
+        repeats,
+        min_total_s,
+    )
 
 
-def _row(table: Table, study: str, variant: str, x: float, mesh: Any, res: Any, elapsed: float,
-         surfaces: int | str = "", note: str = "") -> None:
+def _row(
+    table: Table,
+    study: str,
+    variant: str,
+    x: float,
+    mesh: Any,
+    res: Any,
+    elapsed: float,
+    surfaces: int | str = "",
+    note: str = "",
+) -> None:
     n = res.n_rays
     crossings = float(res.crossings.sum())
-    table.add(study=study, variant=variant, x_value=x, cells=mesh.n_cells, surfaces=surfaces, rays=n,
-              crossings_per_ray=crossings / n, reflections_per_ray=float(res.reflections.mean()),
-              trace_time_s=elapsed, us_per_ray=1e6 * elapsed / n,
-              ns_per_crossing=1e9 * elapsed / max(crossings, 1.0), lost=res.status_counts()["lost"], note=note)
+    table.add(
+        study=study,
+        variant=variant,
+        x_value=x,
+        cells=mesh.n_cells,
+        surfaces=surfaces,
+        rays=n,
+        crossings_per_ray=crossings / n,
+        reflections_per_ray=float(res.reflections.mean()),
+        trace_time_s=elapsed,
+        us_per_ray=1e6 * elapsed / n,
+        ns_per_crossing=1e9 * elapsed / max(crossings, 1.0),
+        lost=res.status_counts()["lost"],
+        note=note,
+    )
 
 
 @on_timing_threads
@@ -57,21 +101,30 @@ def run(quick: bool) -> Section:
     base = CASES["A-LD"]
 
     # (a) gradient magnitude
-    for b in ((0.5, 1.0, 4.0) if quick else (0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0)):
-        case = StratifiedCase(f"b={b:g}", "log", {"c0": 340.0, "b": b, "z_g": 1.0}, base.t_end, base.domain_min,
-                              base.domain_max)
-        med = build_media(case.profile(), "parabolic", Solver(), np.array(case.domain_min),
-                          np.array(case.domain_max))
+    for b in (0.5, 1.0, 4.0) if quick else (0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0):
+        case = StratifiedCase(
+            f"b={b:g}", "log", {"c0": 340.0, "b": b, "z_g": 1.0}, base.t_end, base.domain_min, base.domain_max
+        )
+        med = build_media(case.profile(), "parabolic", Solver(), np.array(case.domain_min), np.array(case.domain_max))
         o, d = case.fan(count)
         elapsed, res = _time(med.mesh, o, d, med.locate(o), case.t_end, 50, repeats, min_total)
-        _row(table, "gradient", "log profile, default slab mesh", abs(b) / 1.0, med.mesh, res, elapsed,
-             note=f"dc/dz at the ground = {b:g} 1/s")
+        _row(
+            table,
+            "gradient",
+            "log profile, default slab mesh",
+            abs(b) / 1.0,
+            med.mesh,
+            res,
+            elapsed,
+            note=f"dc/dz at the ground = {b:g} 1/s",
+        )
 
     # (b) cell count
     o, d = base.fan(count)
-    for delta in ((1e-6, 1e-8, 1e-10) if quick else (1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10)):
-        med = build_media(base.profile(), "parabolic", Solver(delta=delta), np.array(base.domain_min),
-                          np.array(base.domain_max))
+    for delta in (1e-6, 1e-8, 1e-10) if quick else (1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10):
+        med = build_media(
+            base.profile(), "parabolic", Solver(delta=delta), np.array(base.domain_min), np.array(base.domain_max)
+        )
         elapsed, res = _time(med.mesh, o, d, med.locate(o), base.t_end, 50, repeats, min_total)
         _row(table, "cells", "A-LD slabs", float(med.mesh.n_cells), med.mesh, res, elapsed, note=f"delta={delta:g}")
     if not quick:
@@ -82,15 +135,24 @@ def run(quick: bool) -> Section:
                 table.add(study="cells", variant="desert terrain mesh", note=f"skipped: {exc}")
                 continue
             elapsed, res = _time(sc.mesh, sc.origins, sc.directions, sc.start_cells, 10.0, 3, repeats, min_total)
-            _row(table, "cells", "desert terrain mesh", float(sc.mesh.n_cells), sc.mesh, res, elapsed,
-                 surfaces=sc.surfaces, note=f"horizontal spacing {spacing:g} m")
+            _row(
+                table,
+                "cells",
+                "desert terrain mesh",
+                float(sc.mesh.n_cells),
+                sc.mesh,
+                res,
+                elapsed,
+                surfaces=sc.surfaces,
+                note=f"horizontal spacing {spacing:g} m",
+            )
 
     # (c) surface count
     try:
         from bentray.scenes.library.registry import get_builtin
 
         village = get_builtin("christmas", "medium").surfaces
-        for k in ((0, 40) if quick else (0, 10, 20, 40)):
+        for k in (0, 40) if quick else (0, 10, 20, 40):
             surf = dataclasses.replace(village, footprints=list(village.footprints[:k]))
             try:
                 sc = build_scene_mesh("christmas", scene_rays, surfaces=surf)
@@ -98,8 +160,16 @@ def run(quick: bool) -> Section:
                 table.add(study="surfaces", variant=f"christmas, {k} buildings", note=f"skipped: {exc}")
                 continue
             elapsed, res = _time(sc.mesh, sc.origins, sc.directions, sc.start_cells, 10.0, 3, repeats, min_total)
-            _row(table, "surfaces", f"christmas, {k} buildings", float(sc.surfaces), sc.mesh, res, elapsed,
-                 surfaces=sc.surfaces)
+            _row(
+                table,
+                "surfaces",
+                f"christmas, {k} buildings",
+                float(sc.surfaces),
+                sc.mesh,
+                res,
+                elapsed,
+                surfaces=sc.surfaces,
+            )
     except Exception as exc:  # noqa: BLE001 - the scene library itself failed: report, do not abort the bench
         table.add(study="surfaces", variant="christmas", note=f"skipped: {type(exc).__name__}: {exc}")
 
@@ -108,20 +178,33 @@ def run(quick: bool) -> Section:
         f"Fans of {count} rays (A-LD geometry) and {scene_rays} rays over the sphere for scenes; best of "
         f"{repeats} warm run(s). `ns_per_crossing` = trace time / cell crossings: near-constant means the cost "
         "is the number of cells a ray crosses, whatever the gradient or the surface count. Larger gradients cost "
-        "more only through the finer mesh the sizing rule builds for them and the extra reflections.")
+        "more only through the finer mesh the sizing rule builds for them and the extra reflections."
+    )
     sec.tables.append(table)
     panels = []
-    for study, xlabel in (("gradient", "ground gradient |dc/dz| (1/s)"), ("cells", "cells"),
-                          ("surfaces", "reflecting surface triangles (ground + walls + roofs)")):
+    for study, xlabel in (
+        ("gradient", "ground gradient |dc/dz| (1/s)"),
+        ("cells", "cells"),
+        ("surfaces", "reflecting surface triangles (ground + walls + roofs)"),
+    ):
         series = []
         for variant in dict.fromkeys(r["variant"] for r in table.rows if r["study"] == study):
             rs = [r for r in table.rows if r["study"] == study and r["variant"] == variant and r["trace_time_s"] != ""]
             if rs:
-                series.append(Series(f"{variant}: us per ray", [r["x_value"] for r in rs],
-                                     [r["us_per_ray"] for r in rs]))
-                series.append(Series(f"{variant}: ns per crossing", [r["x_value"] for r in rs],
-                                     [r["ns_per_crossing"] for r in rs], marker="x", linestyle="--"))
-        panels.append({"title": study, "xlabel": xlabel, "ylabel": "time", "xlog": True, "ylog": True,
-                       "series": series})
+                series.append(
+                    Series(f"{variant}: us per ray", [r["x_value"] for r in rs], [r["us_per_ray"] for r in rs])
+                )
+                series.append(
+                    Series(
+                        f"{variant}: ns per crossing",
+                        [r["x_value"] for r in rs],
+                        [r["ns_per_crossing"] for r in rs],
+                        marker="x",
+                        linestyle="--",
+                    )
+                )
+        panels.append(
+            {"title": study, "xlabel": xlabel, "ylabel": "time", "xlog": True, "ylog": True, "series": series}
+        )
     sec.plots.append(Plot("fig8_scaling", "Trace time against gradient, cell count and surface count", panels))
     return sec

@@ -44,18 +44,31 @@ GRIDS = {"small": ([10, -20, 1], [10, 10, 2], [25, 5, 3]), "map": ([0, -50, 1], 
 
 def _job(grid: str, elevations: int, azimuths: int) -> Job:
     origin, spacing, shape = GRIDS[grid]
-    return Job.model_validate({
-        "name": f"scaling-dask-{grid}",
-        "scene": {"domain": {"min": [-20, -60, 0], "max": [300, 60, 120]},
-                  "ground": {"kind": "flat", "flow_resistivity": 200.0}},
-        "profile": {"kind": "log", "c0": 340.0, "b": 1.0, "z_g": 1.0},
-        "sources": [{"position": [0.0, 0.0, 2.0]}],
-        "rays": {"elevation_deg": {"min": -30, "max": 30, "count": elevations},
-                 "azimuth_deg": {"min": -20, "max": 20, "count": azimuths}, "max_time_s": 1.0, "max_reflections": 4},
-        "field": {"origin": origin, "spacing": spacing, "shape": shape, "frequencies_hz": [125, 1000],
-                  "mode": "incoherent"},
-        "outputs": ["field", "report"],
-    })
+    return Job.model_validate(
+        {
+            "name": f"scaling-dask-{grid}",
+            "scene": {
+                "domain": {"min": [-20, -60, 0], "max": [300, 60, 120]},
+                "ground": {"kind": "flat", "flow_resistivity": 200.0},
+            },
+            "profile": {"kind": "log", "c0": 340.0, "b": 1.0, "z_g": 1.0},
+            "sources": [{"position": [0.0, 0.0, 2.0]}],
+            "rays": {
+                "elevation_deg": {"min": -30, "max": 30, "count": elevations},
+                "azimuth_deg": {"min": -20, "max": 20, "count": azimuths},
+                "max_time_s": 1.0,
+                "max_reflections": 4,
+            },
+            "field": {
+                "origin": origin,
+                "spacing": spacing,
+                "shape": shape,
+                "frequencies_hz": [125, 1000],
+                "mode": "incoherent",
+            },
+            "outputs": ["field", "report"],
+        }
+    )
 
 
 class _Captured(Exception):
@@ -67,8 +80,9 @@ class _Capture(LocalExecutor):
 
     plan: TracePlan | None = None
 
-    def run_batches(self, plan: TracePlan, ranges: list[tuple[int, int]],
-                    on_batch: Callable[[BatchResult], None] | None = None) -> list[BatchResult]:
+    def run_batches(
+        self, plan: TracePlan, ranges: list[tuple[int, int]], on_batch: Callable[[BatchResult], None] | None = None
+    ) -> list[BatchResult]:
         self.plan = plan
         raise _Captured
 
@@ -98,15 +112,23 @@ def time_batches(executor: Any, plan: TracePlan, batch_rays: int, repeats: int, 
     return float(best)
 
 
-def _overhead_rows(table: Any, executor: Any, label: str, grid: str, plan: TracePlan, sizes: list[int],
-                   repeats: int) -> float:
+def _overhead_rows(
+    table: Any, executor: Any, label: str, grid: str, plan: TracePlan, sizes: list[int], repeats: int
+) -> float:
     """Time OVERHEAD_RAYS rays in batches of each size, add the rows to ``table``; the fitted s per batch."""
     times = [time_batches(executor, plan, b, repeats, OVERHEAD_RAYS) for b in sizes]
     counts = [-(-OVERHEAD_RAYS // b) for b in sizes]
     t0, slope = _fit_overhead(counts, times)
     for b, n, t in zip(sizes, counts, times, strict=True):
-        table.add(grid=grid, executor=label, batch_rays=b, batches=n, trace_s=t,
-                  ms_per_batch_fit=1e3 * slope, us_per_ray_fit=1e6 * t0 / OVERHEAD_RAYS)
+        table.add(
+            grid=grid,
+            executor=label,
+            batch_rays=b,
+            batches=n,
+            trace_s=t,
+            ms_per_batch_fit=1e3 * slope,
+            us_per_ray_fit=1e6 * t0 / OVERHEAD_RAYS,
+        )
     return slope
 
 
@@ -134,11 +156,17 @@ def run(quick: bool = False, progress: Callable[[str], None] | None = None) -> S
     for plan in plans.values():
         time_batches(LocalExecutor(), plan, n_rays, 1)  # warm: compile or load the kernels
     say(f"plans built: {n_rays} rays")
-    scaling = Table("scaling_dask", f"Strong scaling, {n_rays} rays in batches of {SCALING_BATCH}",
-                    ["grid", "executor", "workers", "numba_threads", "trace_s", "speedup", "rays_per_s"])
-    overhead = Table("batch_overhead", f"{OVERHEAD_RAYS} rays in 1 to {max(counts_all)} batches; "
-                     "ms_per_batch_fit = slope of T over the batch count, us_per_ray_fit = intercept / rays",
-                     ["grid", "executor", "batch_rays", "batches", "trace_s", "ms_per_batch_fit", "us_per_ray_fit"])
+    scaling = Table(
+        "scaling_dask",
+        f"Strong scaling, {n_rays} rays in batches of {SCALING_BATCH}",
+        ["grid", "executor", "workers", "numba_threads", "trace_s", "speedup", "rays_per_s"],
+    )
+    overhead = Table(
+        "batch_overhead",
+        f"{OVERHEAD_RAYS} rays in 1 to {max(counts_all)} batches; "
+        "ms_per_batch_fit = slope of T over the batch count, us_per_ray_fit = intercept / rays",
+        ["grid", "executor", "batch_rays", "batches", "trace_s", "ms_per_batch_fit", "us_per_ray_fit"],
+    )
     local = LocalExecutor()
     base: dict[str, float] = {}
     for grid, plan in plans.items():
@@ -146,27 +174,50 @@ def run(quick: bool = False, progress: Callable[[str], None] | None = None) -> S
             numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
             t = time_batches(local, plan, SCALING_BATCH, repeats)
             base.setdefault(grid, t)
-            scaling.add(grid=grid, executor="local", workers=1, numba_threads=threads, trace_s=t,
-                        speedup=base[grid] / t, rays_per_s=n_rays / t)
+            scaling.add(
+                grid=grid,
+                executor="local",
+                workers=1,
+                numba_threads=threads,
+                trace_s=t,
+                speedup=base[grid] / t,
+                rays_per_s=n_rays / t,
+            )
             say(f"{grid}: local {threads} thread(s) {t:.3f} s")
         numba.set_num_threads(1)
         slope = _overhead_rows(overhead, local, "local, 1 thread", grid, plan, sizes, repeats)
         say(f"{grid}: local overhead {1e3 * slope:.2f} ms/batch")
     for workers in (1, 2):
-        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                          silence_logs=logging.ERROR) as cluster, Client(cluster, set_as_default=False) as client:
+        with (
+            LocalCluster(
+                n_workers=workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                silence_logs=logging.ERROR,
+            ) as cluster,
+            Client(cluster, set_as_default=False) as client,
+        ):
             executor = DaskExecutor(client, numba_threads=1)
             for grid, plan in plans.items():
                 time_batches(executor, plan, SCALING_BATCH, 1)  # warm: workers import and load the kernels
                 t = time_batches(executor, plan, SCALING_BATCH, repeats)
-                scaling.add(grid=grid, executor="dask LocalCluster", workers=workers, numba_threads=1, trace_s=t,
-                            speedup=base[grid] / t, rays_per_s=n_rays / t)
+                scaling.add(
+                    grid=grid,
+                    executor="dask LocalCluster",
+                    workers=workers,
+                    numba_threads=1,
+                    trace_s=t,
+                    speedup=base[grid] / t,
+                    rays_per_s=n_rays / t,
+                )
                 say(f"{grid}: dask {workers} worker(s) {t:.3f} s")
                 if workers == 2:
                     slope = _overhead_rows(overhead, executor, "dask, 2 workers", grid, plan, sizes, repeats)
                     say(f"{grid}: dask overhead {1e3 * slope:.2f} ms/batch")
-    section = Section("scaling_dask", "Dask scale-out: strong scaling and overhead per batch",
-                      tables=[scaling, overhead])
+    section = Section(
+        "scaling_dask", "Dask scale-out: strong scaling and overhead per batch", tables=[scaling, overhead]
+    )
     section.text.append(f"{n_rays} rays; best of {repeats}; speedup against local on 1 numba thread.")
     return section
 
@@ -175,8 +226,7 @@ def _markdown(table: Table) -> str:
     def cell(v: Any) -> str:
         return f"{v:.4g}" if isinstance(v, float) else str(v)
 
-    lines = [f"**{table.title}**", "", "| " + " | ".join(table.columns) + " |",
-             "|" + "---|" * len(table.columns)]
+    lines = [f"**{table.title}**", "", "| " + " | ".join(table.columns) + " |", "|" + "---|" * len(table.columns)]
     lines += ["| " + " | ".join(cell(r[c]) for c in table.columns) + " |" for r in table.rows]
     return "\n".join(lines)
 

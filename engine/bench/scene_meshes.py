@@ -63,8 +63,15 @@ def _native_spacing(surfaces: Any, lo: np.ndarray, hi: np.ndarray) -> float:
     return float(np.max(hi[:2] - lo[:2]) / 50.0)
 
 
-def build_scene_mesh(name: str, count: int, *, resolution: str = "medium", curve: str = "parabolic",
-                     horizontal_spacing_m: float | None = None, surfaces: Any = None) -> SceneMesh:
+def build_scene_mesh(
+    name: str,
+    count: int,
+    *,
+    resolution: str = "medium",
+    curve: str = "parabolic",
+    horizontal_spacing_m: float | None = None,
+    surfaces: Any = None,
+) -> SceneMesh:
     """Build the terrain mesh of built-in scene ``name`` and a fan of ``count`` rays from its first source.
 
     surfaces : replaces the scene's own SceneSurfaces (Fig. 8 varies the terrain resolution).
@@ -86,17 +93,20 @@ def build_scene_mesh(name: str, count: int, *, resolution: str = "medium", curve
 
         def m_at_z(z: np.ndarray) -> np.ndarray:
             z = np.atleast_1d(np.asarray(z, float))
-            return profile.quantity(quantity, np.column_stack([np.full(len(z), centre[0]),
-                                                               np.full(len(z), centre[1]), z]))
+            return profile.quantity(
+                quantity, np.column_stack([np.full(len(z), centre[0]), np.full(len(z), centre[1]), z])
+            )
 
-        z_levels = curvature_layers(lo[2], hi[2], m_at_z, delta=VERTICAL_DELTA, d_min=VERTICAL_D_MIN_M,
-                                    d_max=float(hi[2] - lo[2]))
+        z_levels = curvature_layers(
+            lo[2], hi[2], m_at_z, delta=VERTICAL_DELTA, d_min=VERTICAL_D_MIN_M, d_max=float(hi[2] - lo[2])
+        )
         sigma = (z_levels - lo[2]) / (hi[2] - lo[2])
         sigma[0], sigma[-1] = 0.0, 1.0
         h = horizontal_spacing_m if horizontal_spacing_m is not None else _native_spacing(surf, lo, hi)
         t0 = time.perf_counter()
-        tet = build_terrain_mesh(surf, lo, hi, lambda p: profile.quantity(quantity, p), horizontal_spacing=h,
-                                 layer_levels=sigma)
+        tet = build_terrain_mesh(
+            surf, lo, hi, lambda p: profile.quantity(quantity, p), horizontal_spacing=h, layer_levels=sigma
+        )
         build_s = time.perf_counter() - t0
         src = np.asarray(scene.sources, float)[:1]
         cell = locate_in_terrain_mesh(tet, src)
@@ -109,5 +119,12 @@ def build_scene_mesh(name: str, count: int, *, resolution: str = "medium", curve
     dirs = sphere_directions(count)
     stats = dict(tet.stats)
     stats.update({"horizontal_spacing_m": h, "layers": int(len(sigma) - 1), "profile": profile.kind})
-    return SceneMesh(name=name, mesh=tet.cells, origins=np.repeat(src, count, axis=0), directions=dirs,
-                     start_cells=np.repeat(cell, count), build_s=build_s, stats=stats)
+    return SceneMesh(
+        name=name,
+        mesh=tet.cells,
+        origins=np.repeat(src, count, axis=0),
+        directions=dirs,
+        start_cells=np.repeat(cell, count),
+        build_s=build_s,
+        stats=stats,
+    )

@@ -18,9 +18,26 @@ from bentray.scenes.library.registry import BUILTIN_SCENES
 
 __all__ = ["run", "COLUMNS"]
 
-COLUMNS = ["scene", "resolution", "surface_triangles", "buildings", "media_points", "cells", "layers",
-           "representation", "mesh_build_s", "rays", "trace_s", "crossings_per_ray", "reflections_per_ray",
-           "time_limit", "reflection_limit", "exited", "step_limit", "lost"]
+COLUMNS = [
+    "scene",
+    "resolution",
+    "surface_triangles",
+    "buildings",
+    "media_points",
+    "cells",
+    "layers",
+    "representation",
+    "mesh_build_s",
+    "rays",
+    "trace_s",
+    "crossings_per_ray",
+    "reflections_per_ray",
+    "time_limit",
+    "reflection_limit",
+    "exited",
+    "step_limit",
+    "lost",
+]
 
 
 def run(quick: bool) -> Section:
@@ -34,23 +51,42 @@ def run(quick: bool) -> Section:
     for resolution in resolutions:
         for name in BUILTIN_SCENES:
             t0 = time.perf_counter()
-            outcome = run_job(builtin_job(name, resolution=resolution, elevations=side, azimuths=side,
-                                          max_time_s=10.0, max_reflections=3))
+            outcome = run_job(
+                builtin_job(
+                    name, resolution=resolution, elevations=side, azimuths=side, max_time_s=10.0, max_reflections=3
+                )
+            )
             rep = outcome.report
             mesh = rep["mesh"]
             rays = rep["rays"]
             status = rays["by_status"]
             n = rays["total"]
-            table.add(scene=name, resolution=resolution, surface_triangles=mesh.get("surface_triangles") or 2,
-                      buildings=mesh.get("buildings", 0), media_points=mesh.get("points"), cells=mesh.get("cells"),
-                      layers=mesh.get("layers"), representation=rep["representation"],
-                      mesh_build_s=rep["timings_s"]["mesh"], rays=n, trace_s=rep["timings_s"]["trace"],
-                      crossings_per_ray=rays["tet_crossings_total"] / n, reflections_per_ray=rays["reflections_total"] / n,
-                      time_limit=status["time_limit"], reflection_limit=status["reflection_limit"],
-                      exited=status["exited"], step_limit=status["step_limit"], lost=status["lost"])
+            table.add(
+                scene=name,
+                resolution=resolution,
+                surface_triangles=mesh.get("surface_triangles") or 2,
+                buildings=mesh.get("buildings", 0),
+                media_points=mesh.get("points"),
+                cells=mesh.get("cells"),
+                layers=mesh.get("layers"),
+                representation=rep["representation"],
+                mesh_build_s=rep["timings_s"]["mesh"],
+                rays=n,
+                trace_s=rep["timings_s"]["trace"],
+                crossings_per_ray=rays["tet_crossings_total"] / n,
+                reflections_per_ray=rays["reflections_total"] / n,
+                time_limit=status["time_limit"],
+                reflection_limit=status["reflection_limit"],
+                exited=status["exited"],
+                step_limit=status["step_limit"],
+                lost=status["lost"],
+            )
             section.text.append(f"{name} ({resolution}): {time.perf_counter() - t0:.1f} s wall")
     section.tables.append(table)
-    section.text.insert(0, "Flat ground has 2 surface triangles' worth of ground (one slab face); its media are "
-                           "slabs, not a 3D mesh (the job needs none). Trace times include Numba compilation "
-                           "for the first job of a cold cache.")
+    section.text.insert(
+        0,
+        "Flat ground has 2 surface triangles' worth of ground (one slab face); its media are "
+        "slabs, not a 3D mesh (the job needs none). Trace times include Numba compilation "
+        "for the first job of a cold cache.",
+    )
     return section

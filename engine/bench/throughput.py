@@ -23,8 +23,20 @@ from bentray.engine.tracer import trace
 
 __all__ = ["run", "measure"]
 
-COLUMNS = ["scene", "cells", "rays", "threads", "trace_time_s", "crossings_per_ray", "reflections_per_ray",
-           "crossings_per_s", "crossings_per_s_per_core", "rays_per_s", "lost", "note"]
+COLUMNS = [
+    "scene",
+    "cells",
+    "rays",
+    "threads",
+    "trace_time_s",
+    "crossings_per_ray",
+    "reflections_per_ray",
+    "crossings_per_s",
+    "crossings_per_s_per_core",
+    "rays_per_s",
+    "lost",
+    "note",
+]
 
 
 def measure(sc: SceneMesh, threads: int, repeats: int, min_total_s: float) -> dict[str, Any]:
@@ -34,16 +46,28 @@ def measure(sc: SceneMesh, threads: int, repeats: int, min_total_s: float) -> di
     try:
         kw = {"max_time_s": 10.0, "max_reflections": 3}
         trace(sc.mesh, "parabolic", 340.0, sc.origins[:1], sc.directions[:1], sc.start_cells[:1], **kw)
-        elapsed, res = best_time(lambda: trace(sc.mesh, "parabolic", 340.0, sc.origins, sc.directions,
-                                               sc.start_cells, **kw), repeats, min_total_s)
+        elapsed, res = best_time(
+            lambda: trace(sc.mesh, "parabolic", 340.0, sc.origins, sc.directions, sc.start_cells, **kw),
+            repeats,
+            min_total_s,
+        )
     finally:
         numba.set_num_threads(before)
     crossings = float(res.crossings.sum())
     n = res.n_rays
-    return {"scene": sc.name, "cells": sc.mesh.n_cells, "rays": n, "threads": threads, "trace_time_s": elapsed,
-            "crossings_per_ray": crossings / n, "reflections_per_ray": float(res.reflections.mean()),
-            "crossings_per_s": crossings / elapsed, "crossings_per_s_per_core": crossings / elapsed / threads,
-            "rays_per_s": n / elapsed, "lost": res.status_counts()["lost"]}
+    return {
+        "scene": sc.name,
+        "cells": sc.mesh.n_cells,
+        "rays": n,
+        "threads": threads,
+        "trace_time_s": elapsed,
+        "crossings_per_ray": crossings / n,
+        "reflections_per_ray": float(res.reflections.mean()),
+        "crossings_per_s": crossings / elapsed,
+        "crossings_per_s_per_core": crossings / elapsed / threads,
+        "rays_per_s": n / elapsed,
+        "lost": res.status_counts()["lost"],
+    }
 
 
 def run(quick: bool, scene_cache: dict[str, Any] | None = None) -> Section:
@@ -70,12 +94,15 @@ def run(quick: bool, scene_cache: dict[str, Any] | None = None) -> Section:
     sec.text.append(
         f"{count} rays over the sphere, 10 s, at most 3 reflections, parabolic curve; best of {repeats} warm run(s). "
         "Paper reference (one 3.2 GHz core, 2016): Desert(m) 10K rays, 179 cells per ray, 219 ms, ~8M crossings "
-        "per second. physics.md records 7M/s per core for a naive Numba traversal on random-point Delaunay tets.")
+        "per second. physics.md records 7M/s per core for a naive Numba traversal on random-point Delaunay tets."
+    )
     desert = [r for r in table.rows if r["scene"] == "desert" and r["threads"] != ""]
     if desert:
         one = next(r for r in desert if r["threads"] == 1)
         per_ray = np.mean([r["crossings_per_ray"] for r in desert])
-        sec.text.append(f"**Desert (medium): {one['crossings_per_s_per_core'] / 1e6:.2f}M crossings per second on "
-                        f"one core, {one['rays_per_s']:,.0f} rays per second; {per_ray:.0f} cells per ray.**")
+        sec.text.append(
+            f"**Desert (medium): {one['crossings_per_s_per_core'] / 1e6:.2f}M crossings per second on "
+            f"one core, {one['rays_per_s']:,.0f} rays per second; {per_ray:.0f} cells per ray.**"
+        )
     sec.tables.append(table)
     return sec

@@ -97,9 +97,36 @@ def _ground_factor(f, s, q2tab, q2ax, band_of, refl_cos, refl_mat, n_refl, gq, f
 
 
 @nb.njit(**NJIT_FLAGS)
-def _deposit_point(v, x, tangent, t_pt, s_pt, dt, slowness, mode, fgeo, fshape, weights, alpha, band_of,
-                   q2tab, q2ax, refl_cos, refl_mat, n_refl, gq, fst, ray_id, acc,
-                   energy, c_energy, c_perp2, c_time, c_length, c_ray):
+def _deposit_point(
+    v,
+    x,
+    tangent,
+    t_pt,
+    s_pt,
+    dt,
+    slowness,
+    mode,
+    fgeo,
+    fshape,
+    weights,
+    alpha,
+    band_of,
+    q2tab,
+    q2ax,
+    refl_cos,
+    refl_mat,
+    n_refl,
+    gq,
+    fst,
+    ray_id,
+    acc,
+    energy,
+    c_energy,
+    c_perp2,
+    c_time,
+    c_length,
+    c_ray,
+):
     """Deposit time dt spent around point x (voxel v, arc length s_pt, travel time t_pt)."""
     if mode == FIELD_INCOHERENT:
         for f in range(energy.shape[1]):
@@ -124,9 +151,36 @@ def _deposit_point(v, x, tangent, t_pt, s_pt, dt, slowness, mode, fgeo, fshape, 
 
 
 @nb.njit(**NJIT_FLAGS)
-def flush_pending(x, tangent, t_end, s_end, slowness, mode, fgeo, fshape, weights, alpha, band_of, q2tab, q2ax,
-                  refl_cos, refl_mat, n_refl, gq, fst, last_vox, ray_id, acc,
-                  energy, hits, c_energy, c_perp2, c_time, c_length, c_ray):
+def flush_pending(
+    x,
+    tangent,
+    t_end,
+    s_end,
+    slowness,
+    mode,
+    fgeo,
+    fshape,
+    weights,
+    alpha,
+    band_of,
+    q2tab,
+    q2ax,
+    refl_cos,
+    refl_mat,
+    n_refl,
+    gq,
+    fst,
+    last_vox,
+    ray_id,
+    acc,
+    energy,
+    hits,
+    c_energy,
+    c_perp2,
+    c_time,
+    c_length,
+    c_ray,
+):
     """Deposit the pending time of short segments that ended at x (time t_end, arc s_end)."""
     if fst[0] > 0.0:
         v = _voxel(fgeo, fshape, x)
@@ -134,9 +188,36 @@ def flush_pending(x, tangent, t_end, s_end, slowness, mode, fgeo, fshape, weight
             if v != last_vox[0]:
                 hits[acc, v] += 1.0
                 last_vox[0] = v
-            _deposit_point(v, x, tangent, t_end, s_end - 0.5 * fst[1], fst[0], slowness, mode, fgeo, fshape,
-                           weights, alpha, band_of, q2tab, q2ax, refl_cos, refl_mat, n_refl, gq, fst, ray_id, acc,
-                           energy, c_energy, c_perp2, c_time, c_length, c_ray)
+            _deposit_point(
+                v,
+                x,
+                tangent,
+                t_end,
+                s_end - 0.5 * fst[1],
+                fst[0],
+                slowness,
+                mode,
+                fgeo,
+                fshape,
+                weights,
+                alpha,
+                band_of,
+                q2tab,
+                q2ax,
+                refl_cos,
+                refl_mat,
+                n_refl,
+                gq,
+                fst,
+                ray_id,
+                acc,
+                energy,
+                c_energy,
+                c_perp2,
+                c_time,
+                c_length,
+                c_ray,
+            )
         else:
             last_vox[0] = -1
     fst[0] = 0.0
@@ -145,10 +226,44 @@ def flush_pending(x, tangent, t_end, s_end, slowness, mode, fgeo, fshape, weight
 
 @nb.njit(**NJIT_FLAGS)
 def deposit_segment(
-    curve, cs, x0, d0, x1, param_end, t0, s0, seg_t, seg_s, c_ref, m0, grad_m,
-    mode, fgeo, fshape, weights, alpha, band_of, q2tab, q2ax,
-    refl_cos, refl_mat, n_refl, gq, fst, last_vox, ray_id, acc,
-    energy, hits, c_energy, c_perp2, c_time, c_length, c_ray, xs, ts,
+    curve,
+    cs,
+    x0,
+    d0,
+    x1,
+    param_end,
+    t0,
+    s0,
+    seg_t,
+    seg_s,
+    c_ref,
+    m0,
+    grad_m,
+    mode,
+    fgeo,
+    fshape,
+    weights,
+    alpha,
+    band_of,
+    q2tab,
+    q2ax,
+    refl_cos,
+    refl_mat,
+    n_refl,
+    gq,
+    fst,
+    last_vox,
+    ray_id,
+    acc,
+    energy,
+    hits,
+    c_energy,
+    c_perp2,
+    c_time,
+    c_length,
+    c_ray,
+    xs,
+    ts,
 ):
     """Deposit one segment (param 0 .. param_end from x0 to x1: time seg_t, arc length seg_s).
 
@@ -173,9 +288,36 @@ def deposit_segment(
         fst[1] += seg_s
         return
     slowness0 = curves.slowness(curve, m0, c_ref)
-    flush_pending(x0, d0, t0, s0, slowness0, mode, fgeo, fshape, weights, alpha, band_of, q2tab, q2ax,
-                  refl_cos, refl_mat, n_refl, gq, fst, last_vox, ray_id, acc,
-                  energy, hits, c_energy, c_perp2, c_time, c_length, c_ray)
+    flush_pending(
+        x0,
+        d0,
+        t0,
+        s0,
+        slowness0,
+        mode,
+        fgeo,
+        fshape,
+        weights,
+        alpha,
+        band_of,
+        q2tab,
+        q2ax,
+        refl_cos,
+        refl_mat,
+        n_refl,
+        gq,
+        fst,
+        last_vox,
+        ray_id,
+        acc,
+        energy,
+        hits,
+        c_energy,
+        c_perp2,
+        c_time,
+        c_length,
+        c_ray,
+    )
     if _misses_grid(fgeo, fshape, x0, x1, 0.5 * seg_s):
         last_vox[0] = -1
         return
@@ -203,6 +345,33 @@ def deposit_segment(
             m = m0 + grad_m[0] * (xs[0] - x0[0]) + grad_m[1] * (xs[1] - x0[1]) + grad_m[2] * (xs[2] - x0[2])
             slowness = curves.slowness(curve, m, c_ref)
             t_mid = t0 + curves.time_at(curve, cs, p_mid, c_ref)
-        _deposit_point(v, xs, ts, t_mid, s0 + ds_mid, dt, slowness, mode, fgeo, fshape, weights, alpha, band_of,
-                       q2tab, q2ax, refl_cos, refl_mat, n_refl, gq, fst, ray_id, acc,
-                       energy, c_energy, c_perp2, c_time, c_length, c_ray)
+        _deposit_point(
+            v,
+            xs,
+            ts,
+            t_mid,
+            s0 + ds_mid,
+            dt,
+            slowness,
+            mode,
+            fgeo,
+            fshape,
+            weights,
+            alpha,
+            band_of,
+            q2tab,
+            q2ax,
+            refl_cos,
+            refl_mat,
+            n_refl,
+            gq,
+            fst,
+            ray_id,
+            acc,
+            energy,
+            c_energy,
+            c_perp2,
+            c_time,
+            c_length,
+            c_ray,
+        )

@@ -208,8 +208,27 @@ def _emit(path_pts, path_t, path_s, base, cap, count, x, t, s):
 
 
 @nb.njit(**NJIT_FLAGS)
-def _emit_segment(curve, cs, x0, d0, param_end, t0, s0, t_end, c_ref, t_last, dt_sample,
-                  path_pts, path_t, path_s, base, cap, count, xs, ts):
+def _emit_segment(
+    curve,
+    cs,
+    x0,
+    d0,
+    param_end,
+    t0,
+    s0,
+    t_end,
+    c_ref,
+    t_last,
+    dt_sample,
+    path_pts,
+    path_t,
+    path_s,
+    base,
+    cap,
+    count,
+    xs,
+    ts,
+):
     """Interior samples of a segment spanning more than dt_sample (evaluated on the curve)."""
     n_int = int((t_end - t0) / dt_sample)
     if n_int > 2 * cap:
@@ -224,32 +243,144 @@ def _emit_segment(curve, cs, x0, d0, param_end, t0, s0, t_end, c_ref, t_last, dt
 
 
 @nb.njit(**NJIT_FLAGS)
-def _deposit(fld, curve, cs, x0, d0, x1, param_end, t0, s0, seg_t, seg_s, c_ref, m0, grad_m, f_weights,
-             refl_cos, refl_mat, n_refl, gq, fst, last_vox, ray_id, acc, xs, ts):
+def _deposit(
+    fld,
+    curve,
+    cs,
+    x0,
+    d0,
+    x1,
+    param_end,
+    t0,
+    s0,
+    seg_t,
+    seg_s,
+    c_ref,
+    m0,
+    grad_m,
+    f_weights,
+    refl_cos,
+    refl_mat,
+    n_refl,
+    gq,
+    fst,
+    last_vox,
+    ray_id,
+    acc,
+    xs,
+    ts,
+):
     field.deposit_segment(
-        curve, cs, x0, d0, x1, param_end, t0, s0, seg_t, seg_s, c_ref, m0, grad_m,
-        fld[0], fld[1], fld[2], f_weights, fld[3], fld[4], fld[5], fld[6],
-        refl_cos, refl_mat, n_refl, gq, fst, last_vox, ray_id, acc,
-        fld[7], fld[8], fld[9], fld[10], fld[11], fld[12], fld[13], xs, ts,
+        curve,
+        cs,
+        x0,
+        d0,
+        x1,
+        param_end,
+        t0,
+        s0,
+        seg_t,
+        seg_s,
+        c_ref,
+        m0,
+        grad_m,
+        fld[0],
+        fld[1],
+        fld[2],
+        f_weights,
+        fld[3],
+        fld[4],
+        fld[5],
+        fld[6],
+        refl_cos,
+        refl_mat,
+        n_refl,
+        gq,
+        fst,
+        last_vox,
+        ray_id,
+        acc,
+        fld[7],
+        fld[8],
+        fld[9],
+        fld[10],
+        fld[11],
+        fld[12],
+        fld[13],
+        xs,
+        ts,
     )
 
 
 @nb.njit(**NJIT_FLAGS)
 def _flush(fld, x, d, t, s, slowness, f_weights, refl_cos, refl_mat, n_refl, gq, fst, last_vox, ray_id, acc):
     field.flush_pending(
-        x, d, t, s, slowness, fld[0], fld[1], fld[2], f_weights, fld[3], fld[4], fld[5], fld[6],
-        refl_cos, refl_mat, n_refl, gq, fst, last_vox, ray_id, acc,
-        fld[7], fld[8], fld[9], fld[10], fld[11], fld[12], fld[13],
+        x,
+        d,
+        t,
+        s,
+        slowness,
+        fld[0],
+        fld[1],
+        fld[2],
+        f_weights,
+        fld[3],
+        fld[4],
+        fld[5],
+        fld[6],
+        refl_cos,
+        refl_mat,
+        n_refl,
+        gq,
+        fst,
+        last_vox,
+        ray_id,
+        acc,
+        fld[7],
+        fld[8],
+        fld[9],
+        fld[10],
+        fld[11],
+        fld[12],
+        fld[13],
     )
 
 
 @nb.njit(**NJIT_FLAGS)
 def trace_one(
-    planes, neighbours, neighbour_face, media_ref, ref_point, gradient, size, face_material,
-    curve, c_ref, wind_code, wind_params, x_start, d_start, cell_start, max_time, max_reflections, max_steps,
-    record, dt_sample, path_pts, path_t, path_s, path_base, path_cap,
-    fld, f_weights, acc, ray_id, refl_cos, refl_mat,
-    out_state, out_counts,
+    planes,
+    neighbours,
+    neighbour_face,
+    media_ref,
+    ref_point,
+    gradient,
+    size,
+    face_material,
+    curve,
+    c_ref,
+    wind_code,
+    wind_params,
+    x_start,
+    d_start,
+    cell_start,
+    max_time,
+    max_reflections,
+    max_steps,
+    record,
+    dt_sample,
+    path_pts,
+    path_t,
+    path_s,
+    path_base,
+    path_cap,
+    fld,
+    f_weights,
+    acc,
+    ray_id,
+    refl_cos,
+    refl_mat,
+    out_state,
+    out_counts,
 ):
     """Trace one ray. out_state (8,): x, y, z, dx, dy, dz, time_s, length_m.
 
@@ -331,8 +462,18 @@ def trace_one(
             # deposit all use them. Without wind nothing here changes.
             m0 = effective_quantity(curve, c_ref, m0, g, wind_code, wind_params, x, e_wind, w_grad, g_eff)
             if _chord_middle(planes[cell], neighbours[cell], x, d, x_mid):
-                effective_quantity(curve, c_ref, _media_at(media_ref, ref_point, gradient, cell, x_mid), g,
-                                   wind_code, wind_params, x_mid, e_wind, w_grad, g_eff)
+                effective_quantity(
+                    curve,
+                    c_ref,
+                    _media_at(media_ref, ref_point, gradient, cell, x_mid),
+                    g,
+                    wind_code,
+                    wind_params,
+                    x_mid,
+                    e_wind,
+                    w_grad,
+                    g_eff,
+                )
             for i in range(3):
                 g[i] = g_eff[i]
         exclude = entry
@@ -343,8 +484,11 @@ def trace_one(
                 g_slide[i] = g[i]
                 if nb_cell >= 0 and not wind_on:
                     g_slide[i] = 0.5 * (g[i] + gradient[nb_cell, i])
-            gm = (g_slide[0] * planes[cell, slide_face, 0] + g_slide[1] * planes[cell, slide_face, 1]
-                  + g_slide[2] * planes[cell, slide_face, 2])
+            gm = (
+                g_slide[0] * planes[cell, slide_face, 0]
+                + g_slide[1] * planes[cell, slide_face, 1]
+                + g_slide[2] * planes[cell, slide_face, 2]
+            )
             for i in range(3):
                 g[i] = g_slide[i] - gm * planes[cell, slide_face, i]
             exclude = slide_face
@@ -387,12 +531,55 @@ def trace_one(
             param_end = curves.param_at_time(curve, cs, max_time - t, param, c_ref)
             ds = curves.evaluate(curve, cs, x, d, param_end, xn, dn)
             if f_on:
-                _deposit(fld, curve, cs, x, d, xn, param_end, t, s, max_time - t, ds, c_ref, m0, g,
-                         f_weights, refl_cos, refl_mat, reflections, gq, fst, last_vox, ray_id, acc, xs, ts)
+                _deposit(
+                    fld,
+                    curve,
+                    cs,
+                    x,
+                    d,
+                    xn,
+                    param_end,
+                    t,
+                    s,
+                    max_time - t,
+                    ds,
+                    c_ref,
+                    m0,
+                    g,
+                    f_weights,
+                    refl_cos,
+                    refl_mat,
+                    reflections,
+                    gq,
+                    fst,
+                    last_vox,
+                    ray_id,
+                    acc,
+                    xs,
+                    ts,
+                )
             if record and max_time - t > dt_sample:
-                count, t_last = _emit_segment(curve, cs, x, d, param_end, t, s, max_time, c_ref, t_last,
-                                              dt_sample, path_pts, path_t, path_s, path_base, path_cap,
-                                              count, xs, ts)
+                count, t_last = _emit_segment(
+                    curve,
+                    cs,
+                    x,
+                    d,
+                    param_end,
+                    t,
+                    s,
+                    max_time,
+                    c_ref,
+                    t_last,
+                    dt_sample,
+                    path_pts,
+                    path_t,
+                    path_s,
+                    path_base,
+                    path_cap,
+                    count,
+                    xs,
+                    ts,
+                )
             for i in range(3):
                 x[i] = xn[i]
                 d[i] = dn[i]
@@ -406,13 +593,56 @@ def trace_one(
         elif param != 0.0:
             zero_run += 1
         if f_on:
-            _deposit(fld, curve, cs, x, d, xn, param, t, s, dt, ds, c_ref, m0, g, f_weights,
-                     refl_cos, refl_mat, reflections, gq, fst, last_vox, ray_id, acc, xs, ts)
+            _deposit(
+                fld,
+                curve,
+                cs,
+                x,
+                d,
+                xn,
+                param,
+                t,
+                s,
+                dt,
+                ds,
+                c_ref,
+                m0,
+                g,
+                f_weights,
+                refl_cos,
+                refl_mat,
+                reflections,
+                gq,
+                fst,
+                last_vox,
+                ray_id,
+                acc,
+                xs,
+                ts,
+            )
         if record:
             if dt > dt_sample:
-                count, t_last = _emit_segment(curve, cs, x, d, param, t, s, t + dt, c_ref, t_last,
-                                              dt_sample, path_pts, path_t, path_s, path_base, path_cap,
-                                              count, xs, ts)
+                count, t_last = _emit_segment(
+                    curve,
+                    cs,
+                    x,
+                    d,
+                    param,
+                    t,
+                    s,
+                    t + dt,
+                    c_ref,
+                    t_last,
+                    dt_sample,
+                    path_pts,
+                    path_t,
+                    path_s,
+                    path_base,
+                    path_cap,
+                    count,
+                    xs,
+                    ts,
+                )
         for i in range(3):
             x[i] = xn[i]
             d[i] = dn[i]
@@ -459,9 +689,36 @@ def trace_one(
                 status = STATUS_REFLECTION_LIMIT
                 break
             if f_on:  # time gathered before the reflection belongs to the incoming ray
-                _flush(fld, x, d, t, s, _slowness_at(curve, c_ref, media_ref, ref_point, gradient, cell, x,
-                                                      ray_wind, wind_params, e_wind, w_grad, g_tmp),
-                       f_weights, refl_cos, refl_mat, reflections, gq, fst, last_vox, ray_id, acc)
+                _flush(
+                    fld,
+                    x,
+                    d,
+                    t,
+                    s,
+                    _slowness_at(
+                        curve,
+                        c_ref,
+                        media_ref,
+                        ref_point,
+                        gradient,
+                        cell,
+                        x,
+                        ray_wind,
+                        wind_params,
+                        e_wind,
+                        w_grad,
+                        g_tmp,
+                    ),
+                    f_weights,
+                    refl_cos,
+                    refl_mat,
+                    reflections,
+                    gq,
+                    fst,
+                    last_vox,
+                    ray_id,
+                    acc,
+                )
                 if face_material[cell, face] > 0:
                     fst[2] = -1.0  # a soft reflection: re-evaluate the ground factors
             if reflections < refl_cos.shape[0]:
@@ -481,9 +738,25 @@ def trace_one(
             status = STATUS_EXITED
             break
     if f_on and cell >= 0:
-        _flush(fld, x, d, t, s, _slowness_at(curve, c_ref, media_ref, ref_point, gradient, cell, x,
-                                             ray_wind, wind_params, e_wind, w_grad, g_tmp),
-               f_weights, refl_cos, refl_mat, reflections, gq, fst, last_vox, ray_id, acc)
+        _flush(
+            fld,
+            x,
+            d,
+            t,
+            s,
+            _slowness_at(
+                curve, c_ref, media_ref, ref_point, gradient, cell, x, ray_wind, wind_params, e_wind, w_grad, g_tmp
+            ),
+            f_weights,
+            refl_cos,
+            refl_mat,
+            reflections,
+            gq,
+            fst,
+            last_vox,
+            ray_id,
+            acc,
+        )
     if record and (count == 0 or t > t_last):
         count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
     for i in range(3):
@@ -501,11 +774,37 @@ def trace_one(
 
 @nb.njit(**PARALLEL_FLAGS)
 def trace_rays(
-    planes, neighbours, neighbour_face, media_ref, ref_point, gradient, size, face_material,
-    curve, c_ref, wind_code, wind_params, origins, directions, start_cells, max_time, max_reflections, max_steps,
-    record, dt_sample, path_cap, path_pts, path_t, path_s,
-    fld, f_weights, n_slots, refl_cos, refl_mat,
-    out_state, out_counts,
+    planes,
+    neighbours,
+    neighbour_face,
+    media_ref,
+    ref_point,
+    gradient,
+    size,
+    face_material,
+    curve,
+    c_ref,
+    wind_code,
+    wind_params,
+    origins,
+    directions,
+    start_cells,
+    max_time,
+    max_reflections,
+    max_steps,
+    record,
+    dt_sample,
+    path_cap,
+    path_pts,
+    path_t,
+    path_s,
+    fld,
+    f_weights,
+    n_slots,
+    refl_cos,
+    refl_mat,
+    out_state,
+    out_counts,
 ):
     """Trace all rays in parallel (prange over ``n_slots`` accumulator slots, rays interleaved).
 
@@ -519,10 +818,37 @@ def trace_rays(
     for slot in nb.prange(n_slots):
         for i in range(slot, n, n_slots):
             trace_one(
-                planes, neighbours, neighbour_face, media_ref, ref_point, gradient, size, face_material,
-                curve, c_ref, wind_code, wind_params, origins[i], directions[i], start_cells[i], max_time,
-                max_reflections, max_steps,
-                record, dt_sample, path_pts, path_t, path_s, i * path_cap, path_cap,
-                fld, f_weights[i], slot, i, refl_cos[i], refl_mat[i],
-                out_state[i], out_counts[i],
+                planes,
+                neighbours,
+                neighbour_face,
+                media_ref,
+                ref_point,
+                gradient,
+                size,
+                face_material,
+                curve,
+                c_ref,
+                wind_code,
+                wind_params,
+                origins[i],
+                directions[i],
+                start_cells[i],
+                max_time,
+                max_reflections,
+                max_steps,
+                record,
+                dt_sample,
+                path_pts,
+                path_t,
+                path_s,
+                i * path_cap,
+                path_cap,
+                fld,
+                f_weights[i],
+                slot,
+                i,
+                refl_cos[i],
+                refl_mat[i],
+                out_state[i],
+                out_counts[i],
             )

@@ -53,7 +53,7 @@ BARY_TOL = 1e-9
 @nb.njit(**NJIT_FLAGS)
 def _surface_hit(curve, cs, x, d, tri_plane, tri_origin, tri_dual, j, best, tol, size, one_nb, xs, ts):
     """Parameter where the curve first reaches triangle j (air to solid) if it is < best, else +inf."""
-    _, r = curves.find_exit(curve, cs, x, d, tri_plane[j:j + 1], one_nb, -1, tol, size)
+    _, r = curves.find_exit(curve, cs, x, d, tri_plane[j : j + 1], one_nb, -1, tol, size)
     if not (r <= best) or not math.isfinite(r):
         return math.inf
     if r == 0.0:
@@ -77,10 +77,35 @@ def _surface_hit(curve, cs, x, d, tri_plane, tri_origin, tri_dual, j, best, tol,
 
 @nb.njit(**NJIT_FLAGS)
 def trace_linked_one(
-    planes, neighbours, neighbour_face, media_ref, ref_point, gradient, size,
-    link_offsets, link_tris, tri_plane, tri_origin, tri_dual,
-    curve, c_ref, x_start, d_start, cell_start, max_time, max_reflections, max_steps,
-    record, dt_sample, path_pts, path_t, path_s, path_base, path_cap, out_state, out_counts,
+    planes,
+    neighbours,
+    neighbour_face,
+    media_ref,
+    ref_point,
+    gradient,
+    size,
+    link_offsets,
+    link_tris,
+    tri_plane,
+    tri_origin,
+    tri_dual,
+    curve,
+    c_ref,
+    x_start,
+    d_start,
+    cell_start,
+    max_time,
+    max_reflections,
+    max_steps,
+    record,
+    dt_sample,
+    path_pts,
+    path_t,
+    path_s,
+    path_base,
+    path_cap,
+    out_state,
+    out_counts,
 ):
     """Trace one ray. out_state (8,): x, y, z, dx, dy, dz, time_s, length_m.
 
@@ -133,8 +158,7 @@ def trace_linked_one(
         for k in range(link_offsets[cell], link_offsets[cell + 1]):
             j = link_tris[k]
             tests += 1
-            r = _surface_hit(curve, cs, x, d, tri_plane, tri_origin, tri_dual, j, param, tol, cell_size, one_nb,
-                             xs, ts)
+            r = _surface_hit(curve, cs, x, d, tri_plane, tri_origin, tri_dual, j, param, tol, cell_size, one_nb, xs, ts)
             if r <= param:
                 param = r
                 hit = j
@@ -163,9 +187,27 @@ def trace_linked_one(
             param_end = curves.param_at_time(curve, cs, max_time - t, param, c_ref)
             ds = curves.evaluate(curve, cs, x, d, param_end, xn, dn)
             if record and max_time - t > dt_sample:
-                count, t_last = _emit_segment(curve, cs, x, d, param_end, t, s, max_time, c_ref, t_last,
-                                              dt_sample, path_pts, path_t, path_s, path_base, path_cap, count,
-                                              xs, ts)
+                count, t_last = _emit_segment(
+                    curve,
+                    cs,
+                    x,
+                    d,
+                    param_end,
+                    t,
+                    s,
+                    max_time,
+                    c_ref,
+                    t_last,
+                    dt_sample,
+                    path_pts,
+                    path_t,
+                    path_s,
+                    path_base,
+                    path_cap,
+                    count,
+                    xs,
+                    ts,
+                )
             for i in range(3):
                 x[i] = xn[i]
                 d[i] = dn[i]
@@ -175,8 +217,27 @@ def trace_linked_one(
             break
         ds = curves.evaluate(curve, cs, x, d, param, xn, dn)
         if record and dt > dt_sample:
-            count, t_last = _emit_segment(curve, cs, x, d, param, t, s, t + dt, c_ref, t_last, dt_sample,
-                                          path_pts, path_t, path_s, path_base, path_cap, count, xs, ts)
+            count, t_last = _emit_segment(
+                curve,
+                cs,
+                x,
+                d,
+                param,
+                t,
+                s,
+                t + dt,
+                c_ref,
+                t_last,
+                dt_sample,
+                path_pts,
+                path_t,
+                path_s,
+                path_base,
+                path_cap,
+                count,
+                xs,
+                ts,
+            )
         for i in range(3):
             x[i] = xn[i]
             d[i] = dn[i]
@@ -243,16 +304,65 @@ def trace_linked_one(
 
 @nb.njit(**PARALLEL_FLAGS)
 def trace_linked_rays(
-    planes, neighbours, neighbour_face, media_ref, ref_point, gradient, size,
-    link_offsets, link_tris, tri_plane, tri_origin, tri_dual,
-    curve, c_ref, origins, directions, start_cells, max_time, max_reflections, max_steps,
-    record, dt_sample, path_cap, path_pts, path_t, path_s, out_state, out_counts,
+    planes,
+    neighbours,
+    neighbour_face,
+    media_ref,
+    ref_point,
+    gradient,
+    size,
+    link_offsets,
+    link_tris,
+    tri_plane,
+    tri_origin,
+    tri_dual,
+    curve,
+    c_ref,
+    origins,
+    directions,
+    start_cells,
+    max_time,
+    max_reflections,
+    max_steps,
+    record,
+    dt_sample,
+    path_cap,
+    path_pts,
+    path_t,
+    path_s,
+    out_state,
+    out_counts,
 ):
     """All rays in parallel (prange over rays); ray i owns its rows and path slice [i cap, (i + 1) cap)."""
     for i in nb.prange(origins.shape[0]):
         trace_linked_one(
-            planes, neighbours, neighbour_face, media_ref, ref_point, gradient, size,
-            link_offsets, link_tris, tri_plane, tri_origin, tri_dual,
-            curve, c_ref, origins[i], directions[i], start_cells[i], max_time, max_reflections, max_steps,
-            record, dt_sample, path_pts, path_t, path_s, i * path_cap, path_cap, out_state[i], out_counts[i],
+            planes,
+            neighbours,
+            neighbour_face,
+            media_ref,
+            ref_point,
+            gradient,
+            size,
+            link_offsets,
+            link_tris,
+            tri_plane,
+            tri_origin,
+            tri_dual,
+            curve,
+            c_ref,
+            origins[i],
+            directions[i],
+            start_cells[i],
+            max_time,
+            max_reflections,
+            max_steps,
+            record,
+            dt_sample,
+            path_pts,
+            path_t,
+            path_s,
+            i * path_cap,
+            path_cap,
+            out_state[i],
+            out_counts[i],
         )

@@ -97,8 +97,9 @@ def lsq_gradients(
     return grads, used_fallback
 
 
-def cell_media(points: np.ndarray, tets: np.ndarray, neighbours: np.ndarray, quantity_at,
-               gradient_method: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+def cell_media(
+    points: np.ndarray, tets: np.ndarray, neighbours: np.ndarray, quantity_at, gradient_method: str
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
     """Per-cell linear media of a tetrahedral mesh from the traced quantity at its vertices.
 
     points (P, 3) metres; tets (T, 4); neighbours (T, 4) (negative: boundary); quantity_at: xyz (N, 3)
@@ -118,15 +119,24 @@ def cell_media(points: np.ndarray, tets: np.ndarray, neighbours: np.ndarray, qua
     return vertex_values, media_ref, centroids, grad, int(fallback.sum())
 
 
-def tet_cell_mesh(points: np.ndarray, tets: np.ndarray, planes: np.ndarray, neighbours: np.ndarray,
-                  neighbour_face: np.ndarray, longest: np.ndarray, face_material: np.ndarray, quantity_at,
-                  gradient_method: str):
+def tet_cell_mesh(
+    points: np.ndarray,
+    tets: np.ndarray,
+    planes: np.ndarray,
+    neighbours: np.ndarray,
+    neighbour_face: np.ndarray,
+    longest: np.ndarray,
+    face_material: np.ndarray,
+    quantity_at,
+    gradient_method: str,
+):
     """The kernels' CellMesh of a tetrahedral mesh whose geometry and boundary tags are built: per-cell
     linear media from :func:`cell_media`. Returns (CellMesh, vertex values (P,), Green-Gauss fallbacks)."""
     from bentray.engine.mesh.cells import CellMesh
 
     vertex_values, media_ref, centroids, grad, n_fallback = cell_media(
-        points, tets, neighbours, quantity_at, gradient_method)
+        points, tets, neighbours, quantity_at, gradient_method
+    )
     cells = CellMesh(
         planes=np.ascontiguousarray(planes),
         neighbours=np.ascontiguousarray(neighbours),

@@ -323,8 +323,9 @@ def _overlap_pairs(cell_v, tri_v, ci, ti, pad, out):
         out[k] = tet_triangle_overlap(cell_v[ci[k]], tri_v[ti[k]], pad[ci[k]])
 
 
-def link_cells(cell_vertices: np.ndarray, tri_vertices: np.ndarray, *, tol_rel: float = LINK_TOL_REL
-               ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+def link_cells(
+    cell_vertices: np.ndarray, tri_vertices: np.ndarray, *, tol_rel: float = LINK_TOL_REL
+) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """CSR link table of the triangles overlapping each tetrahedral cell.
 
     cell_vertices : (C, 4, 3) float64 metres; tri_vertices : (T, 3, 3) float64 metres.
@@ -337,7 +338,7 @@ def link_cells(cell_vertices: np.ndarray, tri_vertices: np.ndarray, *, tol_rel: 
     clo, chi, tlo, thi = cv.min(axis=1), cv.max(axis=1), tv.min(axis=1), tv.max(axis=1)
     parts = []
     for start in range(0, len(cv), LINK_CHUNK):  # chunks keep box_pairs under its candidate limit
-        a, b = box_pairs(clo[start:start + LINK_CHUNK], chi[start:start + LINK_CHUNK], tlo, thi)
+        a, b = box_pairs(clo[start : start + LINK_CHUNK], chi[start : start + LINK_CHUNK], tlo, thi)
         parts.append((a + start, b))
     ci = np.concatenate([p[0] for p in parts]) if parts else np.zeros(0, dtype=np.int64)
     ti = np.concatenate([p[1] for p in parts]) if parts else np.zeros(0, dtype=np.int64)
@@ -352,8 +353,12 @@ def link_cells(cell_vertices: np.ndarray, tri_vertices: np.ndarray, *, tol_rel: 
     ci, ti = ci[order], ti[order]
     offsets = np.zeros(len(cv) + 1, dtype=np.int64)
     np.cumsum(np.bincount(ci, minlength=len(cv)), out=offsets[1:])
-    stats = {"candidate_pairs": int(len(ok)), "links": int(len(ti)), "candidates_s": t1 - t0,
-             "exact_s": time.perf_counter() - t1}
+    stats = {
+        "candidate_pairs": int(len(ok)),
+        "links": int(len(ti)),
+        "candidates_s": t1 - t0,
+        "exact_s": time.perf_counter() - t1,
+    }
     return offsets, np.ascontiguousarray(ti, dtype=np.int64), stats
 
 
@@ -425,8 +430,16 @@ def build_linked_mesh(
         return quantity_at(q)
 
     box_lo = np.array([lo[0], lo[1], bottom])
-    tet = build_terrain_mesh(SceneSurfaces(), box_lo, hi, clamped, horizontal_spacing=float(horizontal_spacing),
-                             layer_levels=sigma, top=top, gradient_method=gradient_method)
+    tet = build_terrain_mesh(
+        SceneSurfaces(),
+        box_lo,
+        hi,
+        clamped,
+        horizontal_spacing=float(horizontal_spacing),
+        layer_levels=sigma,
+        top=top,
+        gradient_method=gradient_method,
+    )
     t2 = time.perf_counter()
     cell_v = tet.points[tet.tets]
     offsets, link_tris, link_stats = link_cells(cell_v, tri.vertices)

@@ -67,9 +67,7 @@ def curvature_layers(
             m_hi = float(m_at_z(np.array([z1]))[0])
         levels.append(z_next)
         if len(levels) > MAX_LAYERS:
-            raise ValueError(
-                f"the sizing rule asks for more than {MAX_LAYERS} layers; raise delta or d_min_m"
-            )
+            raise ValueError(f"the sizing rule asks for more than {MAX_LAYERS} layers; raise delta or d_min_m")
         z = z_next
         m_lo = m_hi
     return np.asarray(levels)
@@ -114,8 +112,12 @@ def gradient_layers(
     return np.asarray(levels)
 
 
-def relative_error_1d(z_levels: np.ndarray, m_at_z: Callable[[np.ndarray], np.ndarray],
-                      n_from_m: Callable[[np.ndarray], np.ndarray], n_points: int = 20001) -> float:
+def relative_error_1d(
+    z_levels: np.ndarray,
+    m_at_z: Callable[[np.ndarray], np.ndarray],
+    n_from_m: Callable[[np.ndarray], np.ndarray],
+    n_points: int = 20001,
+) -> float:
     """Eq. 14 of the paper on a fine input grid in z: ||n_G - n~_G|| / ||n_G||.
 
     The grid is geometric near the bottom (where stratified profiles curve most) and uniform above.
@@ -166,8 +168,11 @@ def sizing_grid_spacing(
     lo = np.asarray(domain_min, float)
     hi = np.asarray(domain_max, float)
     ext = hi - lo
-    step = grid_step if grid_step is not None else max(
-        0.5 * d_min, float(np.prod(ext) / SIZING_GRID_MAX_NODES) ** (1.0 / 3.0))
+    step = (
+        grid_step
+        if grid_step is not None
+        else max(0.5 * d_min, float(np.prod(ext) / SIZING_GRID_MAX_NODES) ** (1.0 / 3.0))
+    )
     shape = [int(np.clip(np.ceil(e / step), 2, 400)) + 1 for e in ext]
     axes = [np.linspace(lo[i], hi[i], shape[i]) for i in range(3)]
     mesh = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)

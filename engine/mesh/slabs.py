@@ -96,8 +96,9 @@ def locate_in_slabs(z_levels: np.ndarray, xyz: np.ndarray) -> np.ndarray:
     return idx.astype(np.int64)
 
 
-def slab_geometry(domain_min: np.ndarray, domain_max: np.ndarray, mesh: CellMesh, z_levels: np.ndarray,
-                  quantity: str) -> MeshGeometry:
+def slab_geometry(
+    domain_min: np.ndarray, domain_max: np.ndarray, mesh: CellMesh, z_levels: np.ndarray, quantity: str
+) -> MeshGeometry:
     """Hexahedra (VTK ordering) for mesh.vtu, with the traced quantity and its gradient per cell."""
     lo = np.asarray(domain_min, float)
     hi = np.asarray(domain_max, float)

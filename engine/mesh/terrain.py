@@ -159,8 +159,9 @@ def _terrain(surface: HeightGrid | TriangleSurface | None, lo: np.ndarray, hi: n
     raise ValueError(f"unsupported terrain type {type(surface).__name__}")
 
 
-def terrain_height_function(surface: HeightGrid | TriangleSurface | None, lo: np.ndarray,
-                            hi: np.ndarray) -> Callable[[np.ndarray], np.ndarray]:
+def terrain_height_function(
+    surface: HeightGrid | TriangleSurface | None, lo: np.ndarray, hi: np.ndarray
+) -> Callable[[np.ndarray], np.ndarray]:
     """Ground height z (metres) at plan points xy (N, 2) as the mesh sees it (bilinear grid, TIN, or
     flat at lo z), clamped to the domain's xy box."""
     lo = np.asarray(lo, dtype=np.float64)
@@ -386,8 +387,9 @@ def build_terrain_mesh(
     t2 = time.perf_counter()
 
     # --- media and gradients ----------------------------------------------------------------------------
-    cells, vertex_values, n_fallback = tet_cell_mesh(points, tets, planes, neighbours, nbf, longest, face_material,
-                                                     quantity_at, gradient_method)
+    cells, vertex_values, n_fallback = tet_cell_mesh(
+        points, tets, planes, neighbours, nbf, longest, face_material, quantity_at, gradient_method
+    )
     t3 = time.perf_counter()
 
     used = np.zeros(len(points), dtype=bool)

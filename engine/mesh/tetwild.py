@@ -318,8 +318,9 @@ def build_obstacle_tet_mesh(
     t2 = time.perf_counter()
 
     # --- media and gradients -------------------------------------------------------------------------------
-    cells, vertex_values, n_fallback = tet_cell_mesh(points, tets, planes, neighbours, nbf, longest, face_material,
-                                                     quantity_at, gradient_method)
+    cells, vertex_values, n_fallback = tet_cell_mesh(
+        points, tets, planes, neighbours, nbf, longest, face_material, quantity_at, gradient_method
+    )
     t3 = time.perf_counter()
 
     stats = {

@@ -76,8 +76,9 @@ def _run(method, profile, elevations=ELEVATIONS, source=SOURCE, **kw):
     kw.setdefault("max_reflections", 50)
     kw.setdefault("domain_min", LO)
     kw.setdefault("domain_max", HI)
-    return trace_numerical(method, "exact", exact_spec=exact_media_spec(profile), c_ref=profile.c_ref,
-                           origins=o, directions=d, **kw)
+    return trace_numerical(
+        method, "exact", exact_spec=exact_media_spec(profile), c_ref=profile.c_ref, origins=o, directions=d, **kw
+    )
 
 
 def _order(errors, ratio=2.0):
@@ -120,8 +121,10 @@ def test_exact_media_match_the_profile_methods(profile):
     above[5] = [20.0, -10.0, 15.0]  # the hot-spot centre itself (zero subgradient of the cone)
     below = _points(rng, 100, 0.0)
     below[:, 2] = rng.uniform(-0.2, 0.0, 100)  # just below ground (mirages turn unphysical further down)
-    cases = [(exact_media_spec(profile, smooth_below_ground=False), np.vstack([above, below])),
-             (exact_media_spec(profile), above)]  # the smooth continuation only differs below ground
+    cases = [
+        (exact_media_spec(profile, smooth_below_ground=False), np.vstack([above, below])),
+        (exact_media_spec(profile), above),
+    ]  # the smooth continuation only differs below ground
     for spec, pts in cases:
         n, g = _eval_exact(spec, pts)
         np.testing.assert_allclose(n, profile.quantity("n", pts), rtol=1e-12, atol=0)
@@ -156,8 +159,11 @@ def test_sampled_profiles_are_refused():
 @pytest.mark.parametrize("quantity", ["n2", "c", "n"])
 def test_mesh_media_walk_to_the_cell_and_evaluate_its_linear_model(quantity):
     z = np.concatenate([[0.0], np.geomspace(0.01, 500.0, 40)])
-    m_of_z = {"n2": lambda zz: 1.0 + 0.004 * np.sqrt(zz), "c": lambda zz: 340.0 + 2.0 * np.log1p(zz),
-              "n": lambda zz: 1.0 + 1e-3 * np.log1p(zz)}[quantity]
+    m_of_z = {
+        "n2": lambda zz: 1.0 + 0.004 * np.sqrt(zz),
+        "c": lambda zz: 340.0 + 2.0 * np.log1p(zz),
+        "n": lambda zz: 1.0 + 1e-3 * np.log1p(zz),
+    }[quantity]
     mesh = build_slab_mesh(LO, np.array([4000.0, 50.0, 500.0]), z, m_of_z)
     med = make_media("mesh", mesh=mesh, quantity=quantity, c_ref=C_REF)
     rng = np.random.default_rng(2)
@@ -170,8 +176,9 @@ def test_mesh_media_walk_to_the_cell_and_evaluate_its_linear_model(quantity):
         n, cell = mesh_n_and_grad(*med[3:10], 17, p, g)
         m = mesh.media_at(c, p[None])[0]
         gm = mesh.gradient[c]
-        n_ref, dn = {"n2": (math.sqrt(m), 1 / (2 * math.sqrt(m))), "c": (C_REF / m, -C_REF / m**2),
-                     "n": (m, 1.0)}[quantity]
+        n_ref, dn = {"n2": (math.sqrt(m), 1 / (2 * math.sqrt(m))), "c": (C_REF / m, -C_REF / m**2), "n": (m, 1.0)}[
+            quantity
+        ]
         assert cell == c
         assert n == pytest.approx(n_ref, rel=1e-14)
         np.testing.assert_allclose(g, dn * gm, rtol=1e-14, atol=1e-300)
@@ -226,10 +233,22 @@ def test_straight_rays_and_ground_images_for_every_method(method, media):
     if media == "exact":
         kw = {"exact_spec": exact_media_spec(profile)}
     else:
-        kw = {"mesh": build_slab_mesh(LO, HI, np.array([0.0, 100.0, 2600.0]), lambda z: np.full_like(z, c0)),
-              "quantity": "c"}
-    r, restarts = trace_numerical(method, media, origins=o, directions=d, max_time_s=T_END, step_m=7.0,
-                                  tolerance=1e-9, domain_min=LO, domain_max=HI, **kw)
+        kw = {
+            "mesh": build_slab_mesh(LO, HI, np.array([0.0, 100.0, 2600.0]), lambda z: np.full_like(z, c0)),
+            "quantity": "c",
+        }
+    r, restarts = trace_numerical(
+        method,
+        media,
+        origins=o,
+        directions=d,
+        max_time_s=T_END,
+        step_m=7.0,
+        tolerance=1e-9,
+        domain_min=LO,
+        domain_max=HI,
+        **kw,
+    )
     assert np.all(r.status == STATUS_TIME_LIMIT)
     assert np.all(r.time_s == T_END)
     for i in range(len(el)):
@@ -244,21 +263,43 @@ def test_straight_rays_and_ground_images_for_every_method(method, media):
 
 def test_reflecting_top_open_sides_and_limits():
     profile = Homogeneous()
-    up = trace_numerical("rk4", "exact", exact_spec=exact_media_spec(profile), origins=[[0, 0, 10.0]],
-                         directions=[[0, 0, 1.0]], max_time_s=2.0, step_m=3.0, domain_min=[-100, -100, 0],
-                         domain_max=[1000, 100, 500], top="reflect")[0]
+    up = trace_numerical(
+        "rk4",
+        "exact",
+        exact_spec=exact_media_spec(profile),
+        origins=[[0, 0, 10.0]],
+        directions=[[0, 0, 1.0]],
+        max_time_s=2.0,
+        step_m=3.0,
+        domain_min=[-100, -100, 0],
+        domain_max=[1000, 100, 500],
+        top="reflect",
+    )[0]
     # up 490 m, down 500 m, up 10 m ... 680 m in 2 s: 490 + 190 -> z = 310 going down, one reflection
     np.testing.assert_allclose(up.position[0], [0, 0, 310.0], atol=1e-9)
     assert up.reflections[0] == 1 and up.status[0] == STATUS_TIME_LIMIT
     np.testing.assert_allclose(up.direction[0], [0, 0, -1.0], atol=1e-15)
-    side = trace_numerical("dopri5", "exact", exact_spec=exact_media_spec(profile), origins=[[0, 0, 10.0]],
-                           directions=[[1.0, 0, 0]], max_time_s=10.0, domain_min=[-100, -100, 0],
-                           domain_max=[1000, 100, 500])[0]
+    side = trace_numerical(
+        "dopri5",
+        "exact",
+        exact_spec=exact_media_spec(profile),
+        origins=[[0, 0, 10.0]],
+        directions=[[1.0, 0, 0]],
+        max_time_s=10.0,
+        domain_min=[-100, -100, 0],
+        domain_max=[1000, 100, 500],
+    )[0]
     assert side.status[0] == STATUS_EXITED
     np.testing.assert_allclose(side.position[0], [1000.0, 0.0, 10.0], atol=1e-9)
     assert side.time_s[0] == pytest.approx(1000.0 / 340.0, rel=1e-12)
-    kw = {"exact_spec": exact_media_spec(profile), "origins": [[0, 0, 10.0]], "directions": [[1.0, 0, -1.0]],
-          "max_time_s": 1.0, "domain_min": LO, "domain_max": HI}
+    kw = {
+        "exact_spec": exact_media_spec(profile),
+        "origins": [[0, 0, 10.0]],
+        "directions": [[1.0, 0, -1.0]],
+        "max_time_s": 1.0,
+        "domain_min": LO,
+        "domain_max": HI,
+    }
     stop = trace_numerical("euler", "exact", max_reflections=0, **kw)[0]
     assert stop.status[0] == STATUS_REFLECTION_LIMIT and stop.reflections[0] == 0
     np.testing.assert_allclose(stop.position[0], [10.0, 0.0, 0.0], atol=1e-12)  # stops on the ground
@@ -341,8 +382,11 @@ def test_dopri5_error_tracks_its_tolerance(case, request):
 
 
 def test_step_doubling_euler_converges_with_its_tolerance(circle_refs):
-    errors = [np.max(np.linalg.norm(_run("euler_adaptive", LinearC(), tolerance=tol)[0].position - circle_refs,
-                                    axis=1)) / PATH for tol in (1e-4, 1e-6)]
+    errors = [
+        np.max(np.linalg.norm(_run("euler_adaptive", LinearC(), tolerance=tol)[0].position - circle_refs, axis=1))
+        / PATH
+        for tol in (1e-4, 1e-6)
+    ]
     # local error ~h^2 controlled per step: the global error falls ~tol^(1/2)
     assert 0.35 < _order(errors, ratio=100.0)[0] < 0.65, errors
 
@@ -357,9 +401,19 @@ def test_mesh_media_agree_with_the_analytic_tracer_on_slabs():
     ref = trace(media.mesh, "parabolic", C_REF, o, d, cells, max_time_s=T_END, max_reflections=50)
     errors = []
     for tol in (1e-10, 1e-12):
-        r, _ = trace_numerical("dopri5", "mesh", mesh=media.mesh, quantity=media.quantity, origins=o,
-                               directions=d, start_cells=cells, max_time_s=T_END, tolerance=tol, domain_min=LO,
-                               domain_max=HI)
+        r, _ = trace_numerical(
+            "dopri5",
+            "mesh",
+            mesh=media.mesh,
+            quantity=media.quantity,
+            origins=o,
+            directions=d,
+            start_cells=cells,
+            max_time_s=T_END,
+            tolerance=tol,
+            domain_min=LO,
+            domain_max=HI,
+        )
         assert np.array_equal(r.reflections, ref.reflections) and np.all(r.status == STATUS_TIME_LIMIT)
         assert np.array_equal(r.crossings, ref.crossings)  # the walk crosses the same slabs
         errors.append(np.max(np.linalg.norm(r.position - ref.position, axis=1)) / PATH)
@@ -375,13 +429,25 @@ def test_mesh_boundary_faces_and_exact_linear_tets():
     pts = fcc_resample(lo, hi, lambda x: np.full(len(x), d), d_min=d, d_max=d)
     tm = build_tet_mesh(lo, hi, pts, lambda x: 1.0 + 0.01 * x[:, 2], spacing=lambda x: np.full(len(x), d))
     el, az = np.meshgrid(np.radians(np.linspace(-60, 60, 7)), np.radians(np.linspace(-80, 80, 5)))
-    dirs = np.column_stack([np.cos(el.ravel()) * np.cos(az.ravel()), np.cos(el.ravel()) * np.sin(az.ravel()),
-                            np.sin(el.ravel())])
+    dirs = np.column_stack(
+        [np.cos(el.ravel()) * np.cos(az.ravel()), np.cos(el.ravel()) * np.sin(az.ravel()), np.sin(el.ravel())]
+    )
     o = np.tile([60.0, 70.0, 30.0], (len(dirs), 1))
     cells = locate_points(tm.cells, o)
     ref = trace(tm.cells, "parabolic", C_REF, o, dirs, cells, max_time_s=0.5, max_reflections=10)
-    r, _ = trace_numerical("rk4", "mesh", mesh=tm.cells, quantity="n2", origins=o, directions=dirs, max_time_s=0.5,
-                           step_m=20.0, domain_min=lo - 1000, domain_max=hi + 1000, ground_z=-500.0)
+    r, _ = trace_numerical(
+        "rk4",
+        "mesh",
+        mesh=tm.cells,
+        quantity="n2",
+        origins=o,
+        directions=dirs,
+        max_time_s=0.5,
+        step_m=20.0,
+        domain_min=lo - 1000,
+        domain_max=hi + 1000,
+        ground_z=-500.0,
+    )
     assert set(np.unique(r.status)) == {STATUS_TIME_LIMIT, STATUS_EXITED}
     np.testing.assert_array_equal(r.status, ref.status)
     np.testing.assert_array_equal(r.reflections, ref.reflections)
@@ -435,9 +501,17 @@ def test_lost_rays_are_reported():
     assert r.status[0] == STATUS_LOST and np.all(np.isfinite(r.position)) and 330.0 < r.position[0, 2] < 340.0
     # mesh media: a start cell of -1 (origin outside the mesh), and an origin outside the domain
     mesh = build_slab_mesh(LO, HI, np.array([0.0, 2600.0]), lambda z: np.ones_like(z))
-    r, _ = trace_numerical("euler", "mesh", mesh=mesh, origins=[[0, 0, 1.0], [0, 0, 1.0]],
-                           directions=[[1, 0, 0], [1, 0, 0]], start_cells=[-1, 0], max_time_s=1.0,
-                           domain_min=LO, domain_max=HI)
+    r, _ = trace_numerical(
+        "euler",
+        "mesh",
+        mesh=mesh,
+        origins=[[0, 0, 1.0], [0, 0, 1.0]],
+        directions=[[1, 0, 0], [1, 0, 0]],
+        start_cells=[-1, 0],
+        max_time_s=1.0,
+        domain_min=LO,
+        domain_max=HI,
+    )
     assert list(r.status) == [STATUS_LOST, STATUS_TIME_LIMIT]
     r, _ = _run("euler", Homogeneous(), [0.0], np.array([0.0, 0.0, -1.0]))
     assert r.status[0] == STATUS_LOST

@@ -61,18 +61,24 @@ def test_console_script_reports_schema_errors_with_field(tmp_path):
     bad["rays"]["elevation_deg"]["count"] = 0
     path = tmp_path / "bad.json"
     path.write_text(json.dumps(bad))
-    proc = subprocess.run([sys.executable, "-m", "bentray.clients.cli", "run", str(path), "--out", str(tmp_path / "o")],
-                          capture_output=True, text=True)
+    proc = subprocess.run(
+        [sys.executable, "-m", "bentray.clients.cli", "run", str(path), "--out", str(tmp_path / "o")],
+        capture_output=True,
+        text=True,
+    )
     assert proc.returncode == 2
     assert "rays.elevation_deg.count" in proc.stderr
     assert not (tmp_path / "o").exists()
 
 
-@pytest.mark.parametrize(("profile", "representation"), [
-    ({"kind": "homogeneous"}, "uniform"),
-    ({"kind": "linear_c"}, "slabs"),
-    ({"kind": "table", "z": [0, 10, 100, 1000], "temperature_c": [20, 18, 15, 10]}, "slabs"),
-])
+@pytest.mark.parametrize(
+    ("profile", "representation"),
+    [
+        ({"kind": "homogeneous"}, "uniform"),
+        ({"kind": "linear_c"}, "slabs"),
+        ({"kind": "table", "z": [0, 10, 100, 1000], "temperature_c": [20, 18, 15, 10]}, "slabs"),
+    ],
+)
 def test_only_what_the_scene_needs(tmp_path, profile, representation):
     job = json.loads(EXAMPLE.read_text())
     job["profile"] = profile

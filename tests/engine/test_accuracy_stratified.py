@@ -20,16 +20,21 @@ REF_STRIDE = 3  # reference rays: every 3rd of the 91 (31 rays) keeps the suite 
 
 
 def _job(profile: dict, solver: dict | None = None, t_end: float = 10.0, count: int = 91, hi_x: float = 4000.0):
-    return Job.model_validate({
-        "name": "accuracy",
-        "scene": {"domain": {"min": [-50, -50, 0], "max": [hi_x, 50, 2600]}, "ground": {"kind": "flat"}},
-        "profile": profile,
-        "sources": [{"position": [0, 0, 1.5]}],
-        "rays": {"elevation_deg": {"min": -45, "max": 45, "count": count},
-                 "max_time_s": t_end, "max_reflections": 50},
-        "solver": solver or {},
-        "outputs": ["report"],
-    })
+    return Job.model_validate(
+        {
+            "name": "accuracy",
+            "scene": {"domain": {"min": [-50, -50, 0], "max": [hi_x, 50, 2600]}, "ground": {"kind": "flat"}},
+            "profile": profile,
+            "sources": [{"position": [0, 0, 1.5]}],
+            "rays": {
+                "elevation_deg": {"min": -45, "max": 45, "count": count},
+                "max_time_s": t_end,
+                "max_reflections": 50,
+            },
+            "solver": solver or {},
+            "outputs": ["report"],
+        }
+    )
 
 
 _REFERENCE_CACHE: dict[tuple, np.ndarray] = {}
@@ -42,7 +47,8 @@ def _reference(kind: str, b: float, t_end: float = 10.0) -> np.ndarray:
         el = np.radians(np.linspace(-45, 45, 91))[::REF_STRIDE]
         d = np.column_stack([np.cos(el), np.zeros_like(el), np.sin(el)])
         _REFERENCE_CACHE[key] = np.array(
-            [integrate_ray(n_of, g_of, np.array([0, 0, 1.5]), di, t_end).position for di in d])
+            [integrate_ray(n_of, g_of, np.array([0, 0, 1.5]), di, t_end).position for di in d]
+        )
     return _REFERENCE_CACHE[key]
 
 

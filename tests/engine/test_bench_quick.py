@@ -32,13 +32,22 @@ def test_cli_quick_subset_writes_report_csvs_and_pngs(tmp_path, capsys):
     assert main(["bench", "--out", str(out), "--quick", "--only", "convergence", "same_quality"]) == 0
     assert "report.md" in capsys.readouterr().out
     report = (out / "report.md").read_text(encoding="utf-8")
-    for text in ("# bentray bench (quick)", "| cpu |", "| numba_threads |", "Convergence of the three curves",
-                 "Same-quality comparison", "fig3_convergence.png"):
+    for text in (
+        "# bentray bench (quick)",
+        "| cpu |",
+        "| numba_threads |",
+        "Convergence of the three curves",
+        "Same-quality comparison",
+        "fig3_convergence.png",
+    ):
         assert text in report
     assert "Error against run time" not in report  # not selected
     assert "Table 2: cost at the same quality" in (out / "summary.md").read_text(encoding="utf-8")
-    for name, columns in (("fig3_convergence", convergence.COLUMNS), ("table2_same_quality", same_quality.COLUMNS),
-                          ("table2_search", same_quality.SEARCH_COLUMNS)):
+    for name, columns in (
+        ("fig3_convergence", convergence.COLUMNS),
+        ("table2_same_quality", same_quality.COLUMNS),
+        ("table2_search", same_quality.SEARCH_COLUMNS),
+    ):
         header, rows = _read_csv(out / f"{name}.csv")
         assert header == columns
         assert rows
@@ -88,19 +97,34 @@ def test_a_failing_section_is_reported_and_the_others_kept(tmp_path, monkeypatch
 
 
 def _row(case, method, media, setting, err, t, rejected=0.0):
-    return {"case": case, "method": method, "media": media, "setting": f"s={setting:g}", "tolerance": setting,
-            "error_max": err, "trace_time_s": t, "status": {"lost": 0}, "rejected_per_ray": rejected}
+    return {
+        "case": case,
+        "method": method,
+        "media": media,
+        "setting": f"s={setting:g}",
+        "tolerance": setting,
+        "error_max": err,
+        "trace_time_s": t,
+        "status": {"lost": 0},
+        "rejected_per_ray": rejected,
+    }
 
 
 def test_speedups_and_stalls_bookkeeping():
     rows = [
-        _row("A-LD", "analytic", "mesh", 1e-5, 2e-4, 0.001), _row("A-LD", "analytic", "mesh", 1e-6, 5e-5, 0.002),
+        _row("A-LD", "analytic", "mesh", 1e-5, 2e-4, 0.001),
+        _row("A-LD", "analytic", "mesh", 1e-6, 5e-5, 0.002),
         _row("A-LD", "analytic", "mesh", 1e-8, 5e-8, 0.010),
-        _row("A-LD", "dopri5", "exact", 1e-4, 8e-5, 0.004), _row("A-LD", "dopri5", "exact", 1e-8, 1e-8, 0.009),
-        _row("A-LD", "dopri5", "mesh", 1e-6, 3e-5, 0.030), _row("A-LD", "dopri5", "mesh", 1e-8, 9e-5, 0.200, 700.0),
-        _row("A-LD", "rk4", "mesh", 4.0, 1e-3, 0.05), _row("A-LD", "rk4", "mesh", 1.0, 5e-4, 0.2),  # 2x for 256x
-        _row("A-LD", "rk4", "exact", 4.0, 1e-3, 0.05), _row("A-LD", "rk4", "exact", 1.0, 1e-5, 0.2),  # 100x: fine
-        _row("A-LD", "euler", "exact", 4.0, 1e-9, 0.05), _row("A-LD", "euler", "exact", 1.0, 1e-9, 0.2),  # at ref
+        _row("A-LD", "dopri5", "exact", 1e-4, 8e-5, 0.004),
+        _row("A-LD", "dopri5", "exact", 1e-8, 1e-8, 0.009),
+        _row("A-LD", "dopri5", "mesh", 1e-6, 3e-5, 0.030),
+        _row("A-LD", "dopri5", "mesh", 1e-8, 9e-5, 0.200, 700.0),
+        _row("A-LD", "rk4", "mesh", 4.0, 1e-3, 0.05),
+        _row("A-LD", "rk4", "mesh", 1.0, 5e-4, 0.2),  # 2x for 256x
+        _row("A-LD", "rk4", "exact", 4.0, 1e-3, 0.05),
+        _row("A-LD", "rk4", "exact", 1.0, 1e-5, 0.2),  # 100x: fine
+        _row("A-LD", "euler", "exact", 4.0, 1e-9, 0.05),
+        _row("A-LD", "euler", "exact", 1.0, 1e-9, 0.2),  # at ref
     ]
     sp = {e["target"]: e for e in error_vs_time.speedups(rows, targets=(1e-4, 1e-7))}
     assert sp[1e-4]["analytic_setting"] == "s=1e-06" and sp[1e-4]["best_exact"] == "dopri5 s=0.0001"
@@ -123,19 +147,22 @@ def test_breakdown_recording_walk_matches_the_tracer():
     from bentray.scenes.schema import Solver
 
     case = CASES["A-LD"]
-    med = build_media(case.profile(), "parabolic", Solver(delta=1e-6), np.array(case.domain_min),
-                      np.array(case.domain_max))
+    med = build_media(
+        case.profile(), "parabolic", Solver(delta=1e-6), np.array(case.domain_min), np.array(case.domain_max)
+    )
     o, d = case.fan(9)
     cells = med.locate(o)
     res = trace(med.mesh, "parabolic", 340.0, o, d, cells, max_time_s=10.0, max_reflections=50)
-    ent = breakdown.record_entries(med.mesh, "parabolic", 340.0, o, d, cells, max_time_s=10.0, max_reflections=50,
-                                   cap=int(res.steps.max()) + 2)
+    ent = breakdown.record_entries(
+        med.mesh, "parabolic", 340.0, o, d, cells, max_time_s=10.0, max_reflections=50, cap=int(res.steps.max()) + 2
+    )
     assert len(ent[0]) == int(res.steps.sum())
     planes = med.mesh.planes[ent[0]]  # (E, K, 4)
     violation = np.einsum("ekj,ej->ek", planes[:, :, :3], ent[2]) - planes[:, :, 3]
     assert np.all(violation.max(axis=1) <= 1e-9 * med.mesh.size[ent[0]])
     assert np.allclose(np.linalg.norm(ent[3], axis=1), 1.0, atol=1e-12)
-    p = breakdown.phase_times(med.mesh, "parabolic", 340.0, o, d, cells, max_time_s=10.0, max_reflections=50,
-                              repeats=1, min_total_s=0.0)
+    p = breakdown.phase_times(
+        med.mesh, "parabolic", 340.0, o, d, cells, max_time_s=10.0, max_reflections=50, repeats=1, min_total_s=0.0
+    )
     assert p["recorded_entries"] == p["segments"] == int(res.steps.sum())
     assert all(math.isfinite(p[k]) for k in ("total_s", "setup_s", "face_intersections_s", "advance_s"))

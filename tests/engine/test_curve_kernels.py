@@ -120,8 +120,14 @@ def test_parabolic_state_solves_ray_ode():
     x0 = np.array([1.0, 2.0, 3.0])
     d0 = np.array([0.8, 0.0, 0.6])
     p0 = math.sqrt(n0sq) * d0
-    sol = solve_ivp(lambda s, y: np.concatenate([y[3:], 0.5 * g]), (0, 400.0), np.concatenate([x0, p0]),
-                    method="DOP853", rtol=1e-13, atol=1e-13)
+    sol = solve_ivp(
+        lambda s, y: np.concatenate([y[3:], 0.5 * g]),
+        (0, 400.0),
+        np.concatenate([x0, p0]),
+        method="DOP853",
+        rtol=1e-13,
+        atol=1e-13,
+    )
     x = np.empty(3)
     t = np.empty(3)
     parabolic.state_at(x0, p0, g, 400.0, x, t)

@@ -28,8 +28,9 @@ C0 = 340.0
 
 
 def _dop853(case, n_of, grad_n_of, rows) -> np.ndarray:
-    return np.array([integrate_ray(n_of, grad_n_of, case.origins[i], case.directions[i], case.max_time_s).position
-                     for i in rows])
+    return np.array(
+        [integrate_ray(n_of, grad_n_of, case.origins[i], case.directions[i], case.max_time_s).position for i in rows]
+    )
 
 
 def _error(result, ref: np.ndarray, rows, t_end: float) -> float:

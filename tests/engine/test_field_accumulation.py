@@ -19,24 +19,44 @@ from bentray.scenes.schema import Job
 SOURCE = [0.0, 0.0, 30.0]
 
 
-def _job(profile: dict, *, max_time: float, field: dict, sources=None, el=(-89.0, 89.0, 60),
-         az=(0.0, 354.0, 60), ground: dict | None = None, name: str = "acc") -> Job:
-    return Job.model_validate({
-        "name": name,
-        "scene": {"domain": {"min": [-100, -100, 0], "max": [1500, 100, 300]}, "ground": ground or {}},
-        "profile": profile,
-        "sources": sources or [{"position": SOURCE}],
-        "rays": {"elevation_deg": {"min": el[0], "max": el[1], "count": el[2]},
-                 "azimuth_deg": {"min": az[0], "max": az[1], "count": az[2]},
-                 "max_time_s": max_time, "max_reflections": 3},
-        "field": field,
-        "outputs": ["field", "report"],
-    })
+def _job(
+    profile: dict,
+    *,
+    max_time: float,
+    field: dict,
+    sources=None,
+    el=(-89.0, 89.0, 60),
+    az=(0.0, 354.0, 60),
+    ground: dict | None = None,
+    name: str = "acc",
+) -> Job:
+    return Job.model_validate(
+        {
+            "name": name,
+            "scene": {"domain": {"min": [-100, -100, 0], "max": [1500, 100, 300]}, "ground": ground or {}},
+            "profile": profile,
+            "sources": sources or [{"position": SOURCE}],
+            "rays": {
+                "elevation_deg": {"min": el[0], "max": el[1], "count": el[2]},
+                "azimuth_deg": {"min": az[0], "max": az[1], "count": az[2]},
+                "max_time_s": max_time,
+                "max_reflections": 3,
+            },
+            "field": field,
+            "outputs": ["field", "report"],
+        }
+    )
 
 
 def _cube(freqs=(500.0,), absorption=False, **extra) -> dict:
-    return {"origin": [-20.0, -20.0, 10.0], "spacing": [1.0, 1.0, 1.0], "shape": [41, 41, 41],
-            "frequencies_hz": list(freqs), "absorption": absorption, **extra}
+    return {
+        "origin": [-20.0, -20.0, 10.0],
+        "spacing": [1.0, 1.0, 1.0],
+        "shape": [41, 41, 41],
+        "frequencies_hz": list(freqs),
+        "absorption": absorption,
+        **extra,
+    }
 
 
 def _captured_energy(monkeypatch) -> dict:
@@ -53,11 +73,15 @@ def _captured_energy(monkeypatch) -> dict:
     return box
 
 
-@pytest.mark.parametrize("profile", [
-    {"kind": "homogeneous", "c0": 340.0},
-    {"kind": "log", "b": 1.0},
-    {"kind": "linear_c", "c0": 340.0, "alpha": 0.5},
-], ids=["uniform", "log-slabs", "linear-c-slabs"])
+@pytest.mark.parametrize(
+    "profile",
+    [
+        {"kind": "homogeneous", "c0": 340.0},
+        {"kind": "log", "b": 1.0},
+        {"kind": "linear_c", "c0": 340.0, "alpha": 0.5},
+    ],
+    ids=["uniform", "log-slabs", "linear-c-slabs"],
+)
 def test_energy_is_conserved_when_the_grid_holds_every_path(profile, monkeypatch) -> None:
     box = _captured_energy(monkeypatch)
     t_max = 0.05  # ~17 m: every path stays inside the 40 m cube around the source
@@ -73,8 +97,11 @@ def test_energy_is_conserved_when_the_grid_holds_every_path(profile, monkeypatch
 def test_absorbed_energy_matches_the_closed_form(monkeypatch) -> None:
     box = _captured_energy(monkeypatch)
     t_max, c = 0.05, 340.0
-    job = _job({"kind": "homogeneous", "c0": c}, max_time=t_max,
-               field=_cube(freqs=(1000.0, 8000.0), absorption=True, humidity_percent=20.0))
+    job = _job(
+        {"kind": "homogeneous", "c0": c},
+        max_time=t_max,
+        field=_cube(freqs=(1000.0, 8000.0), absorption=True, humidity_percent=20.0),
+    )
     run_job(job)
     weights = launch_solid_angles(job.rays.elevation_deg.values(), job.rays.azimuth_deg.values())
     a = energy_absorption(job.field)
@@ -87,16 +114,22 @@ def test_absorbed_energy_matches_the_closed_form(monkeypatch) -> None:
 
 
 def test_spl_is_power_level_minus_tl_and_sources_add(monkeypatch) -> None:
-    field = {"origin": [-10.0, -10.0, 20.0], "spacing": [2.0, 2.0, 2.0], "shape": [11, 11, 11],
-             "frequencies_hz": [125.0, 1000.0], "absorption": False}
+    field = {
+        "origin": [-10.0, -10.0, 20.0],
+        "spacing": [2.0, 2.0, 2.0],
+        "shape": [11, 11, 11],
+        "frequencies_hz": [125.0, 1000.0],
+        "absorption": False,
+    }
     a = {"position": [-4.0, 0.0, 30.0], "power_db": {"125": 100.0, "1000": 90.0}}
     b = {"position": [4.0, 1.0, 28.0], "power_db": {"125": 80.0, "1000": 95.0}}
     hom = {"kind": "homogeneous", "c0": 340.0}
     one = run_job(_job(hom, max_time=0.05, field=field, sources=[a])).field.arrays
     for lab, lw in (("125", 100.0), ("1000", 90.0)):
         ok = np.isfinite(one[f"tl_{lab}hz"])
-        np.testing.assert_allclose(one[f"spl_{lab}hz"][ok], lw - one[f"tl_{lab}hz"][ok] - 10 * np.log10(4 * np.pi),
-                                   atol=1e-9)
+        np.testing.assert_allclose(
+            one[f"spl_{lab}hz"][ok], lw - one[f"tl_{lab}hz"][ok] - 10 * np.log10(4 * np.pi), atol=1e-9
+        )
     only_b = run_job(_job(hom, max_time=0.05, field=field, sources=[b])).field.arrays
     both = run_job(_job(hom, max_time=0.05, field=field, sources=[a, b])).field.arrays
     for lab in ("125", "1000"):
@@ -106,14 +139,19 @@ def test_spl_is_power_level_minus_tl_and_sources_add(monkeypatch) -> None:
     # A-weighted total from the bands: -16.1 dB at 125 Hz, 0 at 1 kHz (exact midband A-weights)
     ok = np.isfinite(both["spl_a"])
     from bentray.engine.acoustics.weighting import a_weighting_db
+
     w = a_weighting_db(np.array([125.0, 1000.0]))
     manual = 10 * np.log10(10 ** ((both["spl_125hz"] + w[0]) / 10) + 10 ** ((both["spl_1000hz"] + w[1]) / 10))
     np.testing.assert_allclose(both["spl_a"][ok], manual[ok], atol=1e-9)
 
 
 def test_field_is_deterministic() -> None:
-    job = _job({"kind": "log", "b": -1.0}, max_time=0.05, field=_cube(freqs=(250.0,)),
-               ground={"kind": "flat", "flow_resistivity": 300000.0})
+    job = _job(
+        {"kind": "log", "b": -1.0},
+        max_time=0.05,
+        field=_cube(freqs=(250.0,)),
+        ground={"kind": "flat", "flow_resistivity": 300000.0},
+    )
     first = run_job(job).field.arrays
     second = run_job(job).field.arrays
     for name in first:
@@ -124,13 +162,25 @@ def test_downward_refraction_fills_the_upward_shadow() -> None:
     """A-LD (log, b = +1) reaches 4 m above the ground at 500-1000 m; A-LU (b = -1) leaves it in the
     geometric shadow: no ray passes there, so ray acoustics gives no level (diffraction and turbulence
     scattering, which set real shadow levels, are not modelled: the report says so)."""
-    field = {"origin": [50.0, 0.0, 4.0], "spacing": [10.0, 2.0, 2.0], "shape": [96, 1, 1],
-             "frequencies_hz": [500.0], "absorption": False}
+    field = {
+        "origin": [50.0, 0.0, 4.0],
+        "spacing": [10.0, 2.0, 2.0],
+        "shape": [96, 1, 1],
+        "frequencies_hz": [500.0],
+        "absorption": False,
+    }
     src = [{"position": [0.0, 0.0, 2.0]}]
     arrays = {}
     for b in (1.0, -1.0):
-        job = _job({"kind": "log", "b": b}, max_time=3.5, field=field, sources=src,
-                   el=(-10.0, 30.0, 400), az=(-0.5, 0.5, 11), name=f"b{int(b)}")
+        job = _job(
+            {"kind": "log", "b": b},
+            max_time=3.5,
+            field=field,
+            sources=src,
+            el=(-10.0, 30.0, 400),
+            az=(-0.5, 0.5, 11),
+            name=f"b{int(b)}",
+        )
         arrays[b] = run_job(job).field.arrays
     x = 50.0 + 10.0 * np.arange(96)
     far = x >= 500.0

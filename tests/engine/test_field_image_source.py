@@ -12,13 +12,13 @@ cross-section (asserted through ray_hits before comparing levels).
 
 from __future__ import annotations
 
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import pytest
 from scipy.signal import find_peaks
 
-from bentray.engine.acoustics.ground import image_source_pressure, spherical_wave_coefficient, ground_impedance
+from bentray.engine.acoustics.ground import ground_impedance, image_source_pressure, spherical_wave_coefficient
 from bentray.engine.run import run_job
 from bentray.scenes.schema import Job
 
@@ -38,22 +38,35 @@ TOL_DB = 1.0
 
 def _job(line: str, mode: str, sigma: float | None) -> Job:
     (el0, el1, n_el), (az0, az1, n_az), x0, nx, dx, t_max = LINES[line]
-    return Job.model_validate({
-        "name": f"image-{line}-{mode}",
-        "scene": {"domain": {"min": [-50, -50, 0], "max": [600, 50, 60]},
-                  "ground": {"kind": "flat", "flow_resistivity": sigma}},
-        "profile": {"kind": "homogeneous", "c0": C0},
-        "sources": [{"position": SOURCE.tolist()}],
-        "rays": {"elevation_deg": {"min": el0, "max": el1, "count": n_el},
-                 "azimuth_deg": {"min": az0, "max": az1, "count": n_az},
-                 "max_time_s": t_max, "max_reflections": 2},
-        "field": {"origin": [x0, 0.0, RECEIVER_Z], "spacing": [dx, 1.0, 1.0], "shape": [nx, 1, 1],
-                  "frequencies_hz": list(FREQS), "absorption": False, "mode": mode},
-        "outputs": ["field", "report"],
-    })
+    return Job.model_validate(
+        {
+            "name": f"image-{line}-{mode}",
+            "scene": {
+                "domain": {"min": [-50, -50, 0], "max": [600, 50, 60]},
+                "ground": {"kind": "flat", "flow_resistivity": sigma},
+            },
+            "profile": {"kind": "homogeneous", "c0": C0},
+            "sources": [{"position": SOURCE.tolist()}],
+            "rays": {
+                "elevation_deg": {"min": el0, "max": el1, "count": n_el},
+                "azimuth_deg": {"min": az0, "max": az1, "count": n_az},
+                "max_time_s": t_max,
+                "max_reflections": 2,
+            },
+            "field": {
+                "origin": [x0, 0.0, RECEIVER_Z],
+                "spacing": [dx, 1.0, 1.0],
+                "shape": [nx, 1, 1],
+                "frequencies_hz": list(FREQS),
+                "absorption": False,
+                "mode": mode,
+            },
+            "outputs": ["field", "report"],
+        }
+    )
 
 
-@lru_cache(maxsize=None)
+@cache
 def _run(line: str, mode: str, sigma: float | None):
     outcome = run_job(_job(line, mode, sigma))
     x0, nx, dx = LINES[line][2:5]
@@ -107,8 +120,11 @@ def test_coherent_level_matches_image_source(line: str, sigma: float | None) -> 
     checked = 0
     for f in FREQS:
         p_ref = image_source_pressure(SOURCE, receivers, f, sigma, c=C0)
-        q = np.ones(len(r2)) if sigma is None else spherical_wave_coefficient(
-            ground_impedance(f, sigma), cos_th, 2 * np.pi * f / C0, r2)
+        q = (
+            np.ones(len(r2))
+            if sigma is None
+            else spherical_wave_coefficient(ground_impedance(f, sigma), cos_th, 2 * np.pi * f / C0, r2)
+        )
         ok = _away_from_dips(p_ref, r1, r2, q)  # over soft ground at long range: may be empty
         tl = arrays[f"tl_{f:g}hz"].ravel()
         err = tl[ok] + 20.0 * np.log10(np.abs(p_ref[ok]))

@@ -156,6 +156,15 @@ def test_terrain_following_slice_picks_the_node_above_the_ground(tmp_path):
     want = origin[2] + spacing[2] * np.rint((ground + 4.0 - origin[2]) / spacing[2])
     want[want > z[-1]] = np.nan  # beyond the top node: blank
     np.testing.assert_array_equal(got, want)
-    out = write_preview_png(tmp_path / "p.png", origin, spacing, shape, values, source_xyz=[5, 5, 3],
-                            receiver_z=5.0, ground_z=ground, receiver_height=4.0)
+    out = write_preview_png(
+        tmp_path / "p.png",
+        origin,
+        spacing,
+        shape,
+        values,
+        source_xyz=[5, 5, 3],
+        receiver_z=5.0,
+        ground_z=ground,
+        receiver_height=4.0,
+    )
     assert out.stat().st_size > 0

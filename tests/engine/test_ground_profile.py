@@ -17,13 +17,15 @@ from bentray.scenes.schema import Job
 
 
 def _fan(z0: float, heights: str) -> Job:
-    return Job.model_validate({
-        "name": "shifted", "scene": {"domain": {"min": [-50, -50, z0], "max": [2000, 50, z0 + 800]},
-                                     "profile_heights": heights},
-        "profile": {"kind": "log", "c0": 340.0, "b": 1.0, "z_g": 1.0},
-        "sources": [{"position": [0.0, 0.0, z0 + 1.5]}],
-        "rays": {"elevation_deg": {"min": -20, "max": 20, "count": 21}, "max_time_s": 4.0, "max_reflections": 30},
-    })
+    return Job.model_validate(
+        {
+            "name": "shifted",
+            "scene": {"domain": {"min": [-50, -50, z0], "max": [2000, 50, z0 + 800]}, "profile_heights": heights},
+            "profile": {"kind": "log", "c0": 340.0, "b": 1.0, "z_g": 1.0},
+            "sources": [{"position": [0.0, 0.0, z0 + 1.5]}],
+            "rays": {"elevation_deg": {"min": -20, "max": 20, "count": 21}, "max_time_s": 4.0, "max_reflections": 30},
+        }
+    )
 
 
 def test_flat_ground_above_zero_traces_the_same_fan_shifted():

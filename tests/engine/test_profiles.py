@@ -51,9 +51,7 @@ PROFILE_FACTORIES = {
     "fluctuating": lambda: P.Fluctuating(P.Log(b=-1.0), rms=1.0, seed=3),
     "fluctuating_vk": lambda: P.Fluctuating(P.HotSpot(), spectrum="von_karman", seed=4),
     "table_pchip": lambda: P.Table(z=[0, 5, 12, 30, 70], c=[340, 341.5, 341.0, 343, 345]),
-    "table_linear": lambda: P.Table(
-        z=[0, 5, 12, 30, 70], c=[340, 341.5, 341.0, 343, 345], interpolation="linear"
-    ),
+    "table_linear": lambda: P.Table(z=[0, 5, 12, 30, 70], c=[340, 341.5, 341.0, 343, 345], interpolation="linear"),
     "grid": _grid_profile,
 }
 
@@ -158,12 +156,8 @@ def test_hot_spot_temperature() -> None:
     np.testing.assert_allclose(hs.temperature(far), t_std, rtol=0, atol=1e-9)
     # decays towards T_std monotonically with distance
     d = np.array([0.0, 10.0, 40.0, 200.0, 1000.0])
-    excess = hs.temperature(np.column_stack([20.0 + d, np.full(5, -5.0), np.full(5, 30.0)])) - (
-        288.15 - 0.0065 * 30.0
-    )
-    np.testing.assert_allclose(
-        excess, (350.0 - (288.15 - 0.0065 * 30.0)) * np.exp(-d / 40.0), rtol=1e-12, atol=1e-12
-    )
+    excess = hs.temperature(np.column_stack([20.0 + d, np.full(5, -5.0), np.full(5, 30.0)])) - (288.15 - 0.0065 * 30.0)
+    np.testing.assert_allclose(excess, (350.0 - (288.15 - 0.0065 * 30.0)) * np.exp(-d / 40.0), rtol=1e-12, atol=1e-12)
     # the standard atmosphere is clamped to [0, 11000] m
     np.testing.assert_allclose(
         P.standard_temperature([-10.0, 0.0, 11000.0, 20000.0]), [288.15, 288.15, 216.65, 216.65], rtol=1e-15

@@ -19,17 +19,22 @@ SMALL = {"min": [-100, -100, 0], "max": [100, 100, 80]}
 
 
 def _job(profile, solver=None, domain=SMALL, t_end=0.5, source=(-80.0, 3.0, 2.0)):
-    return Job.model_validate({
-        "name": "profiles",
-        "scene": {"domain": domain},
-        "profile": profile,
-        "sources": [{"position": list(source)}],
-        "rays": {"elevation_deg": {"min": -20, "max": 30, "count": 11},
-                 "azimuth_deg": {"min": -10, "max": 10, "count": 3},
-                 "max_time_s": t_end, "max_reflections": 20},
-        "solver": solver or {},
-        "outputs": ["report"],
-    })
+    return Job.model_validate(
+        {
+            "name": "profiles",
+            "scene": {"domain": domain},
+            "profile": profile,
+            "sources": [{"position": list(source)}],
+            "rays": {
+                "elevation_deg": {"min": -20, "max": 30, "count": 11},
+                "azimuth_deg": {"min": -10, "max": 10, "count": 3},
+                "max_time_s": t_end,
+                "max_reflections": 20,
+            },
+            "solver": solver or {},
+            "outputs": ["report"],
+        }
+    )
 
 
 def _grid_file(tmp_path):
@@ -43,16 +48,19 @@ def _grid_file(tmp_path):
     return path
 
 
-@pytest.mark.parametrize(("profile", "representation"), [
-    ({"kind": "homogeneous"}, "uniform"),
-    ({"kind": "linear_n"}, "slabs"),
-    ({"kind": "linear_n2"}, "slabs"),
-    ({"kind": "log", "b": -1.0}, "slabs"),
-    ({"kind": "table", "z": [0, 5, 30, 80], "c": [343, 341, 340, 339.5]}, "slabs"),
-    ({"kind": "hot_spot", "center": [0, 0, 10], "t_s": 320, "d0": 30}, "tets"),
-    ({"kind": "fluctuating", "base": {"kind": "log", "b": 1.0}, "rms": 0.3, "k_min": 0.03, "k_max": 0.08}, "tets"),
-    ({"kind": "grid", "path": "GRID"}, "tets"),
-])
+@pytest.mark.parametrize(
+    ("profile", "representation"),
+    [
+        ({"kind": "homogeneous"}, "uniform"),
+        ({"kind": "linear_n"}, "slabs"),
+        ({"kind": "linear_n2"}, "slabs"),
+        ({"kind": "log", "b": -1.0}, "slabs"),
+        ({"kind": "table", "z": [0, 5, 30, 80], "c": [343, 341, 340, 339.5]}, "slabs"),
+        ({"kind": "hot_spot", "center": [0, 0, 10], "t_s": 320, "d0": 30}, "tets"),
+        ({"kind": "fluctuating", "base": {"kind": "log", "b": 1.0}, "rms": 0.3, "k_min": 0.03, "k_max": 0.08}, "tets"),
+        ({"kind": "grid", "path": "GRID"}, "tets"),
+    ],
+)
 def test_profile_kind_runs(tmp_path, profile, representation):
     if profile.get("path") == "GRID":
         profile = {"kind": "grid", "path": str(_grid_file(tmp_path))}
@@ -65,8 +73,15 @@ def test_profile_kind_runs(tmp_path, profile, representation):
     assert np.all(np.isfinite(outcome.trace.position))
     if representation == "tets":
         mesh = report["mesh"]
-        for key in ("points", "cells", "min_cell_size_m", "median_cell_size_m", "radius_edge", "build_time_s",
-                    "approximation_error_eq14"):
+        for key in (
+            "points",
+            "cells",
+            "min_cell_size_m",
+            "median_cell_size_m",
+            "radius_edge",
+            "build_time_s",
+            "approximation_error_eq14",
+        ):
             assert key in mesh
         assert mesh["approximation_error_eq14"]["rel_error_cell_linear"] < 1e-2
 
@@ -83,12 +98,18 @@ def test_hot_spot_error_falls_with_delta():
             el = np.radians(outcome.trace.elevation_deg)
             az = np.radians(outcome.trace.azimuth_deg)
             d = np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-            ref = np.array([
-                integrate_ray(lambda x: float(hs.quantity("n", x[None, :])[0]),
-                              lambda x: hs.refractive_index_gradient(x[None, :])[0],
-                              np.array([-80.0, 3.0, 2.0]), di, t_end).position
-                for di in d
-            ])
+            ref = np.array(
+                [
+                    integrate_ray(
+                        lambda x: float(hs.quantity("n", x[None, :])[0]),
+                        lambda x: hs.refractive_index_gradient(x[None, :])[0],
+                        np.array([-80.0, 3.0, 2.0]),
+                        di,
+                        t_end,
+                    ).position
+                    for di in d
+                ]
+            )
         assert outcome.report["rays"]["by_status"]["time_limit"] == outcome.trace.n_rays
         errors.append(float(np.max(np.linalg.norm(outcome.trace.position - ref, axis=1)) / (340.0 * t_end)))
     assert errors[1] < errors[0] / 3.0, errors

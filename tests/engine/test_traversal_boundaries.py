@@ -125,8 +125,9 @@ def test_ray_leaving_through_its_entry_face():
 @pytest.mark.parametrize("direction", [[0, 0, 1], [0, 0, -1]], ids=["up", "down"])
 def test_ray_along_the_gradient(curve, direction):
     """Vertical rays in a linear profile stay on the vertical line; travel time is exact."""
-    m = {"parabolic": lambda z: 1 + 0.01 * z, "circular": lambda z: 340 + 0.1 * z,
-         "n_linear": lambda z: 1 + 0.002 * z}[curve]
+    m = {"parabolic": lambda z: 1 + 0.01 * z, "circular": lambda z: 340 + 0.1 * z, "n_linear": lambda z: 1 + 0.002 * z}[
+        curve
+    ]
     z = np.linspace(0, 500, 11)
     r = _run(z, m, [0, 0, 100], direction, curve=curve, max_time_s=0.2)
     assert r.status[0] == STATUS_TIME_LIMIT
@@ -153,8 +154,10 @@ def test_huge_gradients_lose_no_ray(factor):
     el = np.radians(np.linspace(-45, 45, 31))
     d = np.column_stack([np.cos(el), np.zeros_like(el), np.sin(el)])
     o = np.tile([0, 0, 10], (31, 1))
-    for curve, m in [("parabolic", lambda zz: 1 + 0.01 * factor * zz),
-                     ("circular", lambda zz: 340 + 0.1 * factor * zz)]:
+    for curve, m in [
+        ("parabolic", lambda zz: 1 + 0.01 * factor * zz),
+        ("circular", lambda zz: 340 + 0.1 * factor * zz),
+    ]:
         mesh = build_slab_mesh(LO, HI, z, m)
         r = trace(mesh, curve, C_REF, o, d, locate_in_slabs(z, o), max_time_s=1.0, max_reflections=10_000)
         assert not np.any(r.status == STATUS_LOST), curve
@@ -169,11 +172,26 @@ def test_a_ray_with_no_exit_is_nudged_counted_and_reported_lost():
     planes[0, 0] = [-1.0, 0.0, 0.0, 0.0]  # x >= 0
     neighbours = np.full((1, k), FACE_UNUSED, dtype=np.int64)
     neighbours[0, 0] = BOUNDARY_OPEN
-    mesh = CellMesh(planes=planes, neighbours=neighbours, neighbour_face=np.full((1, k), -1, dtype=np.int64),
-                    media_ref=np.ones(1), ref_point=np.zeros((1, 3)), gradient=np.zeros((1, 3)),
-                    size=np.ones(1), face_material=np.zeros((1, k), dtype=np.int64))
-    r = trace(mesh, "parabolic", C_REF, np.array([[1.0, 0, 0]]), np.array([[1.0, 0, 0]]), np.array([0]),
-              max_time_s=1.0, max_reflections=1)
+    mesh = CellMesh(
+        planes=planes,
+        neighbours=neighbours,
+        neighbour_face=np.full((1, k), -1, dtype=np.int64),
+        media_ref=np.ones(1),
+        ref_point=np.zeros((1, 3)),
+        gradient=np.zeros((1, 3)),
+        size=np.ones(1),
+        face_material=np.zeros((1, k), dtype=np.int64),
+    )
+    r = trace(
+        mesh,
+        "parabolic",
+        C_REF,
+        np.array([[1.0, 0, 0]]),
+        np.array([[1.0, 0, 0]]),
+        np.array([0]),
+        max_time_s=1.0,
+        max_reflections=1,
+    )
     assert r.status[0] == STATUS_LOST
     assert r.nudges[0] == MAX_NUDGES_IN_A_ROW + 1
 
@@ -192,7 +210,10 @@ def test_walk_relocates_across_cells_and_boundaries():
 
 
 def test_zero_gradient_all_curves_are_straight():
-    for curve, m in [("parabolic", homogeneous), ("circular", lambda z: np.full_like(z, 340.0)),
-                     ("n_linear", homogeneous)]:
+    for curve, m in [
+        ("parabolic", homogeneous),
+        ("circular", lambda z: np.full_like(z, 340.0)),
+        ("n_linear", homogeneous),
+    ]:
         r = _run(np.linspace(0, 500, 7), m, [0, 0, 50], [0.6, 0.0, 0.8], curve=curve, max_time_s=0.5)
         np.testing.assert_allclose(r.position[0], [0.6 * 170, 0, 50 + 0.8 * 170], atol=1e-10)

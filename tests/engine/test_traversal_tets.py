@@ -58,8 +58,9 @@ def test_straight_rays_from_vertices_edges_and_faces(homogeneous_tets, where):
     inner = np.all((pts > LO + 30) & (pts < HI - 30), axis=1)
     cell = int(np.nonzero(np.all(inner[tets], axis=1))[0][0])
     v = pts[tets[cell]]
-    src = {"vertex": v[0], "edge": 0.5 * (v[0] + v[1]), "face": (v[0] + v[1] + v[2]) / 3.0,
-           "interior": v.mean(axis=0)}[where]
+    src = {"vertex": v[0], "edge": 0.5 * (v[0] + v[1]), "face": (v[0] + v[1] + v[2]) / 3.0, "interior": v.mean(axis=0)}[
+        where
+    ]
     d = _fan()
     # also aim exactly at other mesh vertices (rays through vertices and along edges)
     targets = pts[np.all(tets[cell][:, None] != np.arange(len(pts))[None, :], axis=0)][:40]
@@ -68,8 +69,16 @@ def test_straight_rays_from_vertices_edges_and_faces(homogeneous_tets, where):
     start = locate_points(tm.cells, src[None, :])[0]
     assert start >= 0
     t_end = 0.2  # 68 m: stays inside the box, some rays reflect off the ground
-    r = trace(tm.cells, "parabolic", C_REF, np.tile(src, (len(d), 1)), d, np.full(len(d), start),
-              max_time_s=t_end, max_reflections=5)
+    r = trace(
+        tm.cells,
+        "parabolic",
+        C_REF,
+        np.tile(src, (len(d), 1)),
+        d,
+        np.full(len(d), start),
+        max_time_s=t_end,
+        max_reflections=5,
+    )
     assert not np.any(r.status == STATUS_LOST)
     inside = r.status == STATUS_TIME_LIMIT
     assert inside.sum() > 0.5 * len(d)
@@ -93,17 +102,41 @@ def test_exactly_linear_medium_is_exact_on_tets():
     src = np.array([60.0, 80.0, 30.0])
     d = _fan(9, 7)
     start = locate_points(tm.cells, src[None, :])[0]
-    r = trace(tm.cells, "parabolic", C_REF, np.tile(src, (len(d), 1)), d, np.full(len(d), start),
-              max_time_s=0.15, max_reflections=5)
+    r = trace(
+        tm.cells,
+        "parabolic",
+        C_REF,
+        np.tile(src, (len(d), 1)),
+        d,
+        np.full(len(d), start),
+        max_time_s=0.15,
+        max_reflections=5,
+    )
     assert not np.any(r.status == STATUS_LOST)
     # reference: a single huge box cell holding the same linear medium (no internal faces at all)
     from bentray.engine.mesh.cells import CellMesh
 
     box = build_slab_mesh(LO, HI, np.array([LO[2], HI[2]]), lambda z: np.ones_like(z))
-    box = CellMesh(box.planes, box.neighbours, box.neighbour_face, np.array([m(np.zeros(3))]),
-                   np.zeros((1, 3)), a[None, :].copy(), box.size, box.face_material)
-    ref = trace(box, "parabolic", C_REF, np.tile(src, (len(d), 1)), d, np.zeros(len(d), dtype=np.int64),
-                max_time_s=0.15, max_reflections=5)
+    box = CellMesh(
+        box.planes,
+        box.neighbours,
+        box.neighbour_face,
+        np.array([m(np.zeros(3))]),
+        np.zeros((1, 3)),
+        a[None, :].copy(),
+        box.size,
+        box.face_material,
+    )
+    ref = trace(
+        box,
+        "parabolic",
+        C_REF,
+        np.tile(src, (len(d), 1)),
+        d,
+        np.zeros(len(d), dtype=np.int64),
+        max_time_s=0.15,
+        max_reflections=5,
+    )
     same = ref.status == r.status
     assert same.all()
     np.testing.assert_allclose(r.position, ref.position, atol=1e-9 * C_REF * 0.15)

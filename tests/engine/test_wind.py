@@ -72,9 +72,11 @@ def _ridge_speed(x: float, z: float) -> tuple[float, float, float]:
     def du(zz: float) -> tuple[float, float, float]:  # value, d/dx at fixed height, d/d(height)
         p = zz + L
         q = x * x + p * p
-        return (U_REF * H * L * (p * p - x * x) / q**2,
-                U_REF * H * L * (-2.0 * x * q - 4.0 * x * (p * p - x * x)) / q**3,
-                U_REF * H * L * (2.0 * p * q - 4.0 * p * (p * p - x * x)) / q**3)
+        return (
+            U_REF * H * L * (p * p - x * x) / q**2,
+            U_REF * H * L * (-2.0 * x * q - 4.0 * x * (p * p - x * x)) / q**3,
+            U_REF * H * L * (2.0 * p * q - 4.0 * p * (p * p - x * x)) / q**3,
+        )
 
     if dz > Z_G:
         s, sx, sz = du(dz)
@@ -140,9 +142,13 @@ def test_schema_models_match_builders():
     spec = WIND_SPEC_ADAPTER.validate_python({**LOG, "kind": "log", "direction_deg": 30.0})
     assert np.array_equal(wind_from_spec(spec)[1], wind_spec("log", {**LOG, "direction_deg": 30.0})[1])
     assert isinstance(WIND_SPEC_ADAPTER.validate_python(RIDGE_WIND), RidgeWindSpec)
-    for bad in [{**LOG, "kind": "log", "extra": 1}, {**LOG, "kind": "log", "u_star": float("nan")},
-                {**LOG, "kind": "log", "u_star": 5.5}, {**RIDGE, "kind": "ridge", "z_ref_m": 0.1},
-                {"kind": "log", "u_star": 0.5, "z_g": 0.1}]:
+    for bad in [
+        {**LOG, "kind": "log", "extra": 1},
+        {**LOG, "kind": "log", "u_star": float("nan")},
+        {**LOG, "kind": "log", "u_star": 5.5},
+        {**RIDGE, "kind": "ridge", "z_ref_m": 0.1},
+        {"kind": "log", "u_star": 0.5, "z_g": 0.1},
+    ]:
         with pytest.raises(ValidationError):
             WIND_SPEC_ADAPTER.validate_python(bad)
 
@@ -221,8 +227,11 @@ def test_effective_quantity_conversions(curve):
     e = np.array([-0.6, 0.8, 0.0])
     gc = np.array([0.01, -0.02, 0.05])  # grad c of the cell (1/s)
     q = {"parabolic": lambda c: (C_REF / c) ** 2, "circular": lambda c: c, "n_linear": lambda c: C_REF / c}[curve]
-    dq_dc = {"parabolic": lambda c: -2.0 * C_REF**2 / c**3, "circular": lambda c: 1.0,
-             "n_linear": lambda c: -C_REF / c**2}[curve]
+    dq_dc = {
+        "parabolic": lambda c: -2.0 * C_REF**2 / c**3,
+        "circular": lambda c: 1.0,
+        "n_linear": lambda c: -C_REF / c**2,
+    }[curve]
 
     def m_eff(x):
         c = 330.0 + gc @ x
@@ -239,8 +248,17 @@ def test_effective_quantity_conversions(curve):
         np.testing.assert_allclose(g_out, fd, rtol=1e-6, atol=1e-9 * abs(m))
     # c_eff <= 0 (a 400 m/s headwind on 340 m/s air) is refused: the ray would end as lost
     fast = wind_spec("log", {"u_star": 5.0, "z_g": 1e-30, "direction_deg": 0.0})
-    m = effective_quantity(c_code, C_REF, q(340.0), np.zeros(3), *fast, np.array([0.0, 0.0, 100.0]),
-                           np.array([-1.0, 0.0, 0.0]), np.empty(3), np.empty(3))
+    m = effective_quantity(
+        c_code,
+        C_REF,
+        q(340.0),
+        np.zeros(3),
+        *fast,
+        np.array([0.0, 0.0, 100.0]),
+        np.array([-1.0, 0.0, 0.0]),
+        np.empty(3),
+        np.empty(3),
+    )
     assert not m > 0.0
 
 
@@ -268,8 +286,9 @@ _REF: dict = {}
 def _slab_mesh(curve: str, wind, delta: float = 1e-8):
     quantity = {"parabolic": "n2", "circular": "c", "n_linear": "n"}[curve]
     m_q = sizing_quantity(lambda x: np.full(len(x), C0), C_REF, wind, quantity)
-    z = curvature_layers(LO[2], HI[2], lambda zz: m_q(np.column_stack([0 * zz, 0 * zz, zz])),
-                         delta=delta, d_min=1e-5, d_max=HI[2])
+    z = curvature_layers(
+        LO[2], HI[2], lambda zz: m_q(np.column_stack([0 * zz, 0 * zz, zz])), delta=delta, d_min=1e-5, d_max=HI[2]
+    )
     base = C0 if quantity == "c" else 1.0  # homogeneous air: the mesh carries c alone
     return build_slab_mesh(LO, HI, z, lambda zz: np.full(len(zz), base)), z
 
@@ -319,9 +338,12 @@ def test_crosswind_and_windless_regions_equal_no_wind_bit_for_bit():
     cells = locate_in_slabs(z, o)
     kw = {"max_time_s": T_END, "max_reflections": 50, "path_samples": 40}
     ref = trace(base, "parabolic", C_REF, o, d, cells, **kw)
-    for wind in (no_wind(), wind_spec("log", {**LOG, "direction_deg": 90.0}),
-                 wind_spec("ridge", {**RIDGE, "direction_deg": -90.0}),
-                 wind_spec("log", {**LOG, "z_g": 5000.0})):
+    for wind in (
+        no_wind(),
+        wind_spec("log", {**LOG, "direction_deg": 90.0}),
+        wind_spec("ridge", {**RIDGE, "direction_deg": -90.0}),
+        wind_spec("log", {**LOG, "z_g": 5000.0}),
+    ):
         r = trace(base, "parabolic", C_REF, o, d, cells, wind=wind, **kw)
         for name in ("position", "direction", "time_s", "length_m", "reflections", "status", "crossings", "steps"):
             assert np.array_equal(getattr(r, name), getattr(ref, name)), name
@@ -340,10 +362,20 @@ def test_field_energy_conserved_with_wind():
     o, d = _fan(30.0)
     grid = FieldGrid(origin=np.array([-10.0, -10.0, 0.0]), spacing=np.array([10.0, 10.0, 5.0]), shape=(45, 30, 41))
     weights = np.linspace(1.0, 2.0, len(d))[:, None]
-    buf = FieldBuffers("incoherent", grid, weights, np.zeros(1), np.zeros(1, np.int64), np.ones((1, 1, 2, 2)),
-                       np.array([0.0, 1.0, 0.0, 1.0]), 2.0, n_slots=2)
-    r = trace(mesh, "parabolic", C_REF, o, d, locate_in_slabs(z, o), max_time_s=1.0, max_reflections=50,
-              field=buf, wind=wind)
+    buf = FieldBuffers(
+        "incoherent",
+        grid,
+        weights,
+        np.zeros(1),
+        np.zeros(1, np.int64),
+        np.ones((1, 1, 2, 2)),
+        np.array([0.0, 1.0, 0.0, 1.0]),
+        2.0,
+        n_slots=2,
+    )
+    r = trace(
+        mesh, "parabolic", C_REF, o, d, locate_in_slabs(z, o), max_time_s=1.0, max_reflections=50, field=buf, wind=wind
+    )
     assert np.all(r.status == STATUS_TIME_LIMIT) and r.reflections.sum() >= 2
     assert buf.reduce().energy.sum() == pytest.approx(weights.sum() * 1.0, rel=1e-12)
 
@@ -365,14 +397,25 @@ def _box_grid(xs: np.ndarray, zs: np.ndarray, y_lo: float, y_hi: float, m_const:
     ids = np.arange(n)
     nb = np.full((n, 6), BOUNDARY_OPEN, dtype=np.int64)
     nf = np.full((n, 6), -1, dtype=np.int64)
-    for f, ok, other, back in [(0, k > 0, ids - 1, 1), (1, k < nz - 1, ids + 1, 0),
-                               (2, i > 0, ids - nz, 3), (3, i < nx - 1, ids + nz, 2)]:
+    for f, ok, other, back in [
+        (0, k > 0, ids - 1, 1),
+        (1, k < nz - 1, ids + 1, 0),
+        (2, i > 0, ids - nz, 3),
+        (3, i < nx - 1, ids + nz, 2),
+    ]:
         nb[:, f] = np.where(ok, other, BOUNDARY_OPEN)
         nf[:, f] = np.where(ok, back, -1)
     nb[k == 0, 0] = BOUNDARY_REFLECT
-    return CellMesh(planes=planes, neighbours=nb, neighbour_face=nf, media_ref=np.full(n, m_const),
-                    ref_point=np.column_stack([xs[i], zero, zs[k]]), gradient=np.zeros((n, 3)),
-                    size=np.minimum(np.diff(xs)[i], np.diff(zs)[k]), face_material=np.zeros((n, 6), np.int64))
+    return CellMesh(
+        planes=planes,
+        neighbours=nb,
+        neighbour_face=nf,
+        media_ref=np.full(n, m_const),
+        ref_point=np.column_stack([xs[i], zero, zs[k]]),
+        gradient=np.zeros((n, 3)),
+        size=np.minimum(np.diff(xs)[i], np.diff(zs)[k]),
+        face_material=np.zeros((n, 6), np.int64),
+    )
 
 
 RIDGE_SOURCE = np.array([0.0, 0.0, 50.0])  # above the crest (h = 40 m), rays leave both ways
@@ -423,6 +466,7 @@ def test_unphysical_effective_medium_loses_the_ray():
     mesh, z = _slab_mesh("parabolic", None, delta=1e-6)
     o, d = _fan(180.0)
     wind = (WIND_LOG, np.array([1e3, Z_G, 1.0, 0.0, 0.0]))  # past the builder's u* bound, on purpose
-    r = trace(mesh, "parabolic", C_REF, o[:1], d[3:4], locate_in_slabs(z, o[:1]), max_time_s=1.0,
-              max_reflections=5, wind=wind)
+    r = trace(
+        mesh, "parabolic", C_REF, o[:1], d[3:4], locate_in_slabs(z, o[:1]), max_time_s=1.0, max_reflections=5, wind=wind
+    )
     assert r.status[0] == STATUS_LOST and np.all(np.isfinite(r.position))

@@ -17,19 +17,32 @@ from bentray.scenes.schema import Job
 
 
 def _field_job(mode: str, **solver) -> Job:
-    return Job.model_validate({
-        "name": "batches",
-        "scene": {"domain": {"min": [-20, -60, 0], "max": [300, 60, 120]},
-                  "ground": {"kind": "flat", "flow_resistivity": 200.0}},
-        "profile": {"kind": "log", "c0": 340.0, "b": 1.0, "z_g": 1.0},
-        "sources": [{"position": [0.0, 0.0, 2.0]}],
-        "rays": {"elevation_deg": {"min": -30, "max": 30, "count": 31},
-                 "azimuth_deg": {"min": -20, "max": 20, "count": 21}, "max_time_s": 1.0, "max_reflections": 4},
-        "solver": solver,
-        "field": {"origin": [10, -20, 1], "spacing": [10, 10, 2], "shape": [25, 5, 3],
-                  "frequencies_hz": [125, 1000], "mode": mode},
-        "outputs": ["rays", "field", "report"],
-    })
+    return Job.model_validate(
+        {
+            "name": "batches",
+            "scene": {
+                "domain": {"min": [-20, -60, 0], "max": [300, 60, 120]},
+                "ground": {"kind": "flat", "flow_resistivity": 200.0},
+            },
+            "profile": {"kind": "log", "c0": 340.0, "b": 1.0, "z_g": 1.0},
+            "sources": [{"position": [0.0, 0.0, 2.0]}],
+            "rays": {
+                "elevation_deg": {"min": -30, "max": 30, "count": 31},
+                "azimuth_deg": {"min": -20, "max": 20, "count": 21},
+                "max_time_s": 1.0,
+                "max_reflections": 4,
+            },
+            "solver": solver,
+            "field": {
+                "origin": [10, -20, 1],
+                "spacing": [10, 10, 2],
+                "shape": [25, 5, 3],
+                "frequencies_hz": [125, 1000],
+                "mode": mode,
+            },
+            "outputs": ["rays", "field", "report"],
+        }
+    )
 
 
 @pytest.mark.parametrize("mode", ["incoherent", "coherent"])
@@ -53,20 +66,27 @@ def test_batched_run_matches_one_batch(mode):
 
 
 def _baseline_job(curve: str, **solver) -> Job:
-    return Job.model_validate({
-        "name": "baseline",
-        "scene": {"domain": {"min": [-50, -50, 0], "max": [2000, 50, 800]}},
-        "profile": {"kind": "log", "c0": 340.0, "b": 1.0, "z_g": 1.0},
-        "sources": [{"position": [0.0, 0.0, 1.5]}],
-        "rays": {"elevation_deg": {"min": -10, "max": 10, "count": 9}, "max_time_s": 3.0, "max_reflections": 20},
-        "solver": {"curve": curve, **solver},
-        "outputs": ["rays", "report"],
-    })
+    return Job.model_validate(
+        {
+            "name": "baseline",
+            "scene": {"domain": {"min": [-50, -50, 0], "max": [2000, 50, 800]}},
+            "profile": {"kind": "log", "c0": 340.0, "b": 1.0, "z_g": 1.0},
+            "sources": [{"position": [0.0, 0.0, 1.5]}],
+            "rays": {"elevation_deg": {"min": -10, "max": 10, "count": 9}, "max_time_s": 3.0, "max_reflections": 20},
+            "solver": {"curve": curve, **solver},
+            "outputs": ["rays", "report"],
+        }
+    )
 
 
-@pytest.mark.parametrize("curve, solver", [("rk4", {"step_m": 0.5, "media": "exact"}),
-                                           ("dopri5", {"tolerance": 1e-9, "media": "exact"}),
-                                           ("dopri5", {"tolerance": 1e-9, "media": "mesh"})])
+@pytest.mark.parametrize(
+    "curve, solver",
+    [
+        ("rk4", {"step_m": 0.5, "media": "exact"}),
+        ("dopri5", {"tolerance": 1e-9, "media": "exact"}),
+        ("dopri5", {"tolerance": 1e-9, "media": "mesh"}),
+    ],
+)
 def test_baselines_in_jobs_agree_with_the_analytic_tracer(curve, solver):
     analytic = run_job(_baseline_job("parabolic", delta=1e-8)).trace
     outcome = run_job(_baseline_job(curve, **solver))
@@ -81,11 +101,14 @@ def test_baselines_in_jobs_agree_with_the_analytic_tracer(curve, solver):
     assert curve in outcome.report["stages"]["trace"]
 
 
-@pytest.mark.parametrize("solver, field", [
-    ({"curve": "rk4", "tolerance": 1e-6}, "tolerance"),
-    ({"curve": "parabolic", "step_m": 1.0}, "step_m"),
-    ({"curve": "parabolic", "media": "exact"}, "media"),
-])
+@pytest.mark.parametrize(
+    "solver, field",
+    [
+        ({"curve": "rk4", "tolerance": 1e-6}, "tolerance"),
+        ({"curve": "parabolic", "step_m": 1.0}, "step_m"),
+        ({"curve": "parabolic", "media": "exact"}, "media"),
+    ],
+)
 def test_baseline_settings_are_checked(solver, field):
     with pytest.raises(ValidationError) as err:
         _baseline_job(**solver)

@@ -23,16 +23,24 @@ def test_closed_obstacle_job_reflects_and_loses_nothing(tmp_path):
     box = trimesh.creation.box(extents=(10.0, 10.0, 10.0))
     box.apply_translation((25.0, 0.0, 5.5))  # front face at x = 20, 0.5 m above the ground (strictly inside)
     box.export(tmp_path / "cube.stl")
-    job = Job.model_validate({
-        "name": "cube",
-        "scene": {"domain": {"min": [-10, -20, 0], "max": [40, 20, 20]},
-                  "buildings": {"obstacles": [{"file": "cube.stl"}]}},
-        "profile": {"kind": "homogeneous", "c0": 340.0},
-        "sources": [{"position": [0.0, 0.0, 4.0]}],
-        "rays": {"elevation_deg": {"min": -5, "max": 5, "count": 5},
-                 "azimuth_deg": {"min": -10, "max": 10, "count": 5}, "max_time_s": 0.1, "max_reflections": 1},
-        "solver": {"d_max_m": 3.0},
-    })
+    job = Job.model_validate(
+        {
+            "name": "cube",
+            "scene": {
+                "domain": {"min": [-10, -20, 0], "max": [40, 20, 20]},
+                "buildings": {"obstacles": [{"file": "cube.stl"}]},
+            },
+            "profile": {"kind": "homogeneous", "c0": 340.0},
+            "sources": [{"position": [0.0, 0.0, 4.0]}],
+            "rays": {
+                "elevation_deg": {"min": -5, "max": 5, "count": 5},
+                "azimuth_deg": {"min": -10, "max": 10, "count": 5},
+                "max_time_s": 0.1,
+                "max_reflections": 1,
+            },
+            "solver": {"d_max_m": 3.0},
+        }
+    )
     cwd_before = set(os.listdir("."))
     outcome = run_job(job, tmp_path)
     assert set(os.listdir(".")) == cwd_before  # fTetWild's __tracked_surface.stl stays in a temporary folder
@@ -56,8 +64,12 @@ def test_closed_obstacle_job_reflects_and_loses_nothing(tmp_path):
     dev = outcome.report["mesh"]["surface_deviation_m"]
     edge = outcome.report["mesh"]["edge_length_m"]
     assert dev < 0.1 and 0 < edge <= 3.0
-    np.testing.assert_allclose(tr.position, mirror, atol=2 * dev + 14.0 * 2 * dev / edge + 1e-9,
-                               err_msg=f"surface deviation {dev} m, edge length {edge} m")
+    np.testing.assert_allclose(
+        tr.position,
+        mirror,
+        atol=2 * dev + 14.0 * 2 * dev / edge + 1e-9,
+        err_msg=f"surface deviation {dev} m, edge length {edge} m",
+    )
 
 
 def test_obstacle_material_reaches_the_obstacle_faces(tmp_path):
@@ -71,14 +83,21 @@ def test_obstacle_material_reaches_the_obstacle_faces(tmp_path):
     box = trimesh.creation.box(extents=(10.0, 10.0, 10.0))
     box.apply_translation((25.0, 0.0, 5.5))
     box.export(tmp_path / "cube.stl")
-    scene = {"domain": {"min": [-10, -20, 0], "max": [40, 20, 20]},
-             "materials": [{"name": "hedge", "flow_resistivity": 50000}],
-             "buildings": {"obstacles": [{"file": "cube.stl", "material": "hedge"}]}}
-    base = {"name": "cube", "profile": {"kind": "homogeneous"}, "sources": [{"position": [0.0, 0.0, 4.0]}],
-            "rays": {"elevation_deg": {"min": 0, "max": 0, "count": 1}, "max_time_s": 0.1, "max_reflections": 1}}
+    scene = {
+        "domain": {"min": [-10, -20, 0], "max": [40, 20, 20]},
+        "materials": [{"name": "hedge", "flow_resistivity": 50000}],
+        "buildings": {"obstacles": [{"file": "cube.stl", "material": "hedge"}]},
+    }
+    base = {
+        "name": "cube",
+        "profile": {"kind": "homogeneous"},
+        "sources": [{"position": [0.0, 0.0, 4.0]}],
+        "rays": {"elevation_deg": {"min": 0, "max": 0, "count": 1}, "max_time_s": 0.1, "max_reflections": 1},
+    }
     job = Job.model_validate({**base, "scene": scene})
-    surfaces = surfaces_from_specs(job.scene.terrain, job.scene.buildings, job.scene.materials, tmp_path,
-                                   job.scene.box, prefix="scene")
+    surfaces = surfaces_from_specs(
+        job.scene.terrain, job.scene.buildings, job.scene.materials, tmp_path, job.scene.box, prefix="scene"
+    )
     assert surfaces.obstacle_materials == [1]  # 0 is rigid, 1 the first scene material
     media = build_obstacle_media(Homogeneous(), "parabolic", job.solver, [-10, -20, 0], [40, 20, 20], surfaces)
     m = media.mesh

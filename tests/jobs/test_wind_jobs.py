@@ -22,11 +22,16 @@ RIDGE = get_builtin("ridge", "medium")
 
 def _ridge_job(wind: dict | None, azimuth: float, x: float) -> Job:
     spec = {
-        "name": "ridge-wind", "scene": {"builtin": "ridge"}, "profile": RIDGE.profile,
+        "name": "ridge-wind",
+        "scene": {"builtin": "ridge"},
+        "profile": RIDGE.profile,
         "sources": [{"position": [x, 0.0, 4.35]}],
-        "rays": {"elevation_deg": {"min": -1, "max": 8, "count": 37},
-                 "azimuth_deg": {"min": azimuth, "max": azimuth, "count": 1},
-                 "max_time_s": 5.0, "max_reflections": 50},
+        "rays": {
+            "elevation_deg": {"min": -1, "max": 8, "count": 37},
+            "azimuth_deg": {"min": azimuth, "max": azimuth, "count": 1},
+            "max_time_s": 5.0,
+            "max_reflections": 50,
+        },
         "outputs": ["rays", "report"],
     }
     if wind is not None:
@@ -36,8 +41,11 @@ def _ridge_job(wind: dict | None, azimuth: float, x: float) -> Job:
 
 @pytest.fixture(scope="module")
 def ridge_runs():
-    return {(wind, side): run_job(_ridge_job(RIDGE_WIND if wind else None, az, x))
-            for wind in (False, True) for side, az, x in (("down", 0.0, -800.0), ("up", 180.0, 800.0))}
+    return {
+        (wind, side): run_job(_ridge_job(RIDGE_WIND if wind else None, az, x))
+        for wind in (False, True)
+        for side, az, x in (("down", 0.0, -800.0), ("up", 180.0, 800.0))
+    }
 
 
 def test_still_air_fans_are_mirror_images(ridge_runs):
@@ -69,7 +77,8 @@ def test_downwind_bends_toward_the_ground_upwind_away(ridge_runs):
 
 def _flat_job(**extra) -> Job:
     spec = {
-        "name": "log-wind", "scene": {"domain": {"min": [-10, -2000, 0], "max": [2000, 2000, 500]}},
+        "name": "log-wind",
+        "scene": {"domain": {"min": [-10, -2000, 0], "max": [2000, 2000, 500]}},
         "profile": {"kind": "homogeneous", "c0": 340.0},
         "sources": [{"position": [0.0, 0.0, 2.0]}],
         "rays": {"elevation_deg": {"min": 1, "max": 5, "count": 5}, "max_time_s": 3.0, "max_reflections": 20},
@@ -91,7 +100,8 @@ def test_log_wind_over_flat_ground_uses_slabs_and_still_air_uses_one_cell():
 
 
 def test_uniform_representation_is_refused_with_wind():
-    job = _flat_job(wind={"kind": "log", "u_star": 0.6, "z_g": 0.1, "direction_deg": 0.0},
-                    solver={"representation": "uniform"})
+    job = _flat_job(
+        wind={"kind": "log", "u_star": 0.6, "z_g": 0.1, "direction_deg": 0.0}, solver={"representation": "uniform"}
+    )
     with pytest.raises(JobInputError, match="still air"):
         run_job(job)

@@ -233,7 +233,7 @@ def test_link_table_matches_brute_force_overlap():
     scale = rng.uniform(0.05, 0.6, 25)
     tri_v = centre[:, None, :] + scale[:, None, None] * rng.uniform(-1.0, 1.0, (25, 3, 3))
     offsets, linked, stats = link_cells(cell_v, tri_v)
-    got = {(c, int(t)) for c in range(len(cell_v)) for t in linked[offsets[c]:offsets[c + 1]]}
+    got = {(c, int(t)) for c in range(len(cell_v)) for t in linked[offsets[c] : offsets[c + 1]]}
     want = {(c, t) for c in range(len(cell_v)) for t in range(len(tri_v)) if _lp_overlap(cell_v[c], tri_v[t])}
     assert 50 < len(want) < 0.9 * len(cell_v) * len(tri_v)  # a real mix of overlapping and disjoint pairs
     assert got == want

@@ -54,8 +54,9 @@ def integrate_ray(
     ground.direction = -1
     while True:
         y0 = np.concatenate([x, p, [length]])
-        sol = solve_ivp(rhs, (t, t_end), y0, method="DOP853", rtol=rtol, atol=1e-12 * max(1.0, np.abs(x).max()),
-                        events=ground)
+        sol = solve_ivp(
+            rhs, (t, t_end), y0, method="DOP853", rtol=rtol, atol=1e-12 * max(1.0, np.abs(x).max()), events=ground
+        )
         y = sol.y[:, -1]
         x, p, length = y[:3].copy(), y[3:6].copy(), y[6]
         t = sol.t[-1]

@@ -40,19 +40,31 @@ FIELD_RTOL = 1e-12  # different numba thread counts reorder the per-batch slot s
 RAY_FIELDS = ("position", "direction", "time_s", "length_m", "reflections", "status", "crossings")
 
 
-def _spec(mode: str = "incoherent", sources: list[list[float]] | None = None, el: int = 31, az: int = 21,
-          **solver) -> dict:
+def _spec(
+    mode: str = "incoherent", sources: list[list[float]] | None = None, el: int = 31, az: int = 21, **solver
+) -> dict:
     return {
         "name": "dask",
-        "scene": {"domain": {"min": [-20, -60, 0], "max": [300, 60, 120]},
-                  "ground": {"kind": "flat", "flow_resistivity": 200.0}},
+        "scene": {
+            "domain": {"min": [-20, -60, 0], "max": [300, 60, 120]},
+            "ground": {"kind": "flat", "flow_resistivity": 200.0},
+        },
         "profile": {"kind": "log", "c0": 340.0, "b": 1.0, "z_g": 1.0},
         "sources": [{"position": p} for p in (sources or [[0.0, 0.0, 2.0]])],
-        "rays": {"elevation_deg": {"min": -30, "max": 30, "count": el},
-                 "azimuth_deg": {"min": -20, "max": 20, "count": az}, "max_time_s": 1.0, "max_reflections": 4},
+        "rays": {
+            "elevation_deg": {"min": -30, "max": 30, "count": el},
+            "azimuth_deg": {"min": -20, "max": 20, "count": az},
+            "max_time_s": 1.0,
+            "max_reflections": 4,
+        },
         "solver": solver,
-        "field": {"origin": [10, -20, 1], "spacing": [10, 10, 2], "shape": [25, 5, 3],
-                  "frequencies_hz": [125, 1000], "mode": mode},
+        "field": {
+            "origin": [10, -20, 1],
+            "spacing": [10, 10, 2],
+            "shape": [25, 5, 3],
+            "frequencies_hz": [125, 1000],
+            "mode": mode,
+        },
         "outputs": ["rays", "field", "report"],
     }
 
@@ -100,9 +112,20 @@ def client(local_runs):
 def test_batches_never_straddle_sources():
     n_per, n_src = 7, 3
     z = np.zeros((n_per * n_src, 3))
-    plan = TracePlan(mesh=None, curve="parabolic", c_ref=340.0, wind=None, origins=z, directions=z,
-                     start_cells=np.zeros(n_per * n_src, np.int64), max_time_s=1.0, max_reflections=1, max_steps=1,
-                     path_samples=0, source=np.repeat(np.arange(n_src), n_per))
+    plan = TracePlan(
+        mesh=None,
+        curve="parabolic",
+        c_ref=340.0,
+        wind=None,
+        origins=z,
+        directions=z,
+        start_cells=np.zeros(n_per * n_src, np.int64),
+        max_time_s=1.0,
+        max_reflections=1,
+        max_steps=1,
+        path_samples=0,
+        source=np.repeat(np.arange(n_src), n_per),
+    )
     assert plan.batches(3) == [(0, 3), (3, 6), (6, 7), (7, 10), (10, 13), (13, 14), (14, 17), (17, 20), (20, 21)]
     assert plan.batches(100) == [(0, 7), (7, 14), (14, 21)]
     plan.source = None  # no source index: plain blocks
@@ -117,8 +140,17 @@ def test_in_order_sum_gives_the_bits_of_summing_at_the_end():
     def parts() -> list[BatchResult]:
         out = []
         for a in range(0, 60, 10):
-            buf = FieldBuffers("incoherent", grid, np.zeros((0, 2)), np.zeros(2), np.arange(2), np.ones((1, 2, 2, 2)),
-                               np.array([0.0, 1.0, 0.0, 1.0]), 1.0, n_slots=1)
+            buf = FieldBuffers(
+                "incoherent",
+                grid,
+                np.zeros((0, 2)),
+                np.zeros(2),
+                np.arange(2),
+                np.ones((1, 2, 2, 2)),
+                np.array([0.0, 1.0, 0.0, 1.0]),
+                1.0,
+                n_slots=1,
+            )
             buf.energy[:] = rng.lognormal(0.0, 8.0, buf.energy.shape)  # wide range: order changes the bits
             buf.hits[:] = rng.integers(0, 5, buf.hits.shape)
             out.append(BatchResult(a, a + 10, trace=None, field=buf))
@@ -147,9 +179,21 @@ def test_unaligned_arrays_are_realigned():
     raw = np.frombuffer(bytearray(8 * 12 + 1), dtype=np.float64, offset=1, count=12)
     assert not raw.flags.aligned
     grid = FieldGrid(raw[:3], np.ones(3), (1, 1, 1))
-    plan = TracePlan(mesh=(raw.reshape(3, 4), np.zeros(2)), curve="parabolic", c_ref=340.0, wind=(0, raw),
-                     origins=raw.reshape(4, 3), directions=np.zeros((4, 3)), start_cells=np.zeros(4, np.int64),
-                     max_time_s=1.0, max_reflections=1, max_steps=1, path_samples=0, baseline={"x": raw}, field=grid)
+    plan = TracePlan(
+        mesh=(raw.reshape(3, 4), np.zeros(2)),
+        curve="parabolic",
+        c_ref=340.0,
+        wind=(0, raw),
+        origins=raw.reshape(4, 3),
+        directions=np.zeros((4, 3)),
+        start_cells=np.zeros(4, np.int64),
+        max_time_s=1.0,
+        max_reflections=1,
+        max_steps=1,
+        path_samples=0,
+        baseline={"x": raw},
+        field=grid,
+    )
     out = aligned_arrays(plan)
     arrays = [out.mesh[0], out.wind[1], out.origins, out.baseline["x"], out.field.origin]
     assert all(a.flags.aligned for a in arrays)
@@ -184,8 +228,11 @@ def test_same_field_and_rays_as_local_with_progress_per_batch(client, local_runs
     local = local_runs[mode]
     stages: list[tuple[str, float]] = []
     # same numba thread count per batch as here: bit-for-bit the local result
-    same = run_job(_job(mode, batch_rays=100), executor=DaskExecutor(client, numba_threads=numba.get_num_threads()),
-                   progress=lambda s, f: stages.append((s, f)))
+    same = run_job(
+        _job(mode, batch_rays=100),
+        executor=DaskExecutor(client, numba_threads=numba.get_num_threads()),
+        progress=lambda s, f: stages.append((s, f)),
+    )
     _assert_same(local, same, rtol=0.0)
     assert same.report["batches"] == {"count": 7, "batch_rays": 100, "executor": "dask"}
     assert "2 worker(s)" in same.report["stages"]["trace"]
@@ -234,8 +281,9 @@ def test_worker_killed_mid_job_is_rescheduled(client, local_runs):
     assert killed["pid"] not in client.run(os.getpid).values()  # that process is gone (the nanny restarts one)
     assert len(progress) == 1 + 66
     _assert_same(reference, outcome, rtol=FIELD_RTOL)
-    np.testing.assert_allclose(outcome.field.arrays["tl_1000hz"], local_runs["incoherent"].field.arrays["tl_1000hz"],
-                               rtol=FIELD_RTOL)
+    np.testing.assert_allclose(
+        outcome.field.arrays["tl_1000hz"], local_runs["incoherent"].field.arrays["tl_1000hz"], rtol=FIELD_RTOL
+    )
 
 
 def test_scheduler_from_the_environment(client, local_runs, monkeypatch):
@@ -254,15 +302,21 @@ def test_run_and_sweep_commands_on_the_cluster(client, tmp_path, capsys):
     assert report["batches"]["executor"] == "dask" and report["rays"]["total"] == 55
 
     out = tmp_path / "sweep"
-    assert main(["sweep", str(job_path), "--param", "profile.b", "--values", "-1,0,1", "--out", str(out),
-                 "--dask", address]) == 0
+    assert (
+        main(
+            ["sweep", str(job_path), "--param", "profile.b", "--values", "-1,0,1", "--out", str(out), "--dask", address]
+        )
+        == 0
+    )
     with open(out / "sweep.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert [r["value"] for r in rows] == ["-1", "0", "1"]
     for row in rows:
         assert (out / f"profile.b={row['value']}" / "field.vti").is_file()
-        direct = run_job(Job.model_validate(set_dotted(_spec(el=11, az=5), "profile.b", json.loads(row["value"]))),
-                         executor=LocalExecutor())
+        direct = run_job(
+            Job.model_validate(set_dotted(_spec(el=11, az=5), "profile.b", json.loads(row["value"]))),
+            executor=LocalExecutor(),
+        )
         assert int(row["rays_total"]) == 55 == sum(int(row[f"rays_{s}"]) for s in direct.trace.status_counts())
         for status, n in direct.trace.status_counts().items():
             assert int(row[f"rays_{status}"]) == n

@@ -54,8 +54,22 @@ class ServerProcess:
 
     def start(self) -> ServerProcess:
         self.port = free_port()
-        cmd = [sys.executable, "-m", "bentray.service", "serve", "--host", "127.0.0.1", "--port", str(self.port),
-               "--workers", str(self.workers), "--data-dir", str(self.data_dir), "--log-level", "warning"]
+        cmd = [
+            sys.executable,
+            "-m",
+            "bentray.service",
+            "serve",
+            "--host",
+            "127.0.0.1",
+            "--port",
+            str(self.port),
+            "--workers",
+            str(self.workers),
+            "--data-dir",
+            str(self.data_dir),
+            "--log-level",
+            "warning",
+        ]
         with open(self.log, "ab") as log:
             self.proc = subprocess.Popen(cmd, env=self.env, stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
         deadline = time.monotonic() + START_TIMEOUT_S

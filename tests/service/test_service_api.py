@@ -22,8 +22,12 @@ TETRA_OBJ = "v 0 0 0\nv 10 0 0\nv 0 10 0\nv 0 0 10\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf
 
 @pytest.fixture(scope="module")
 def keyed(tmp_path_factory):
-    env = {"BENTRAY_API_KEYS": f"{KEY_A},{KEY_B}", "BENTRAY_MAX_UPLOAD_BYTES": str(UPLOAD_LIMIT),
-           "BENTRAY_MAX_RAYS": "100000", "BENTRAY_MAX_FIELD_POINTS": "1000"}
+    env = {
+        "BENTRAY_API_KEYS": f"{KEY_A},{KEY_B}",
+        "BENTRAY_MAX_UPLOAD_BYTES": str(UPLOAD_LIMIT),
+        "BENTRAY_MAX_RAYS": "100000",
+        "BENTRAY_MAX_FIELD_POINTS": "1000",
+    }
     srv = ServerProcess(tmp_path_factory.mktemp("keyed") / "data", workers=0, env=env).start()
     yield srv
     srv.stop()
@@ -31,8 +35,11 @@ def keyed(tmp_path_factory):
 
 def _files_outside(root, data_dir) -> list[str]:
     """Every file under ``root`` except those under the data folder and the server log."""
-    return sorted(str(p.relative_to(root)) for p in root.rglob("*")
-                  if p.is_file() and data_dir not in p.parents and not p.name.endswith("-server.log"))
+    return sorted(
+        str(p.relative_to(root))
+        for p in root.rglob("*")
+        if p.is_file() and data_dir not in p.parents and not p.name.endswith("-server.log")
+    )
 
 
 def test_two_keys_cannot_see_each_other(keyed):
@@ -41,8 +48,11 @@ def test_two_keys_cannot_see_each_other(keyed):
         assert r.status_code == 202
         job_id = r.json()["id"]
         assert a.get(f"/v1/jobs/{job_id}").json()["name"] == "alice"
-        for method, url in (("GET", f"/v1/jobs/{job_id}"), ("DELETE", f"/v1/jobs/{job_id}"),
-                            ("GET", f"/v1/jobs/{job_id}/results/rays.csv")):
+        for method, url in (
+            ("GET", f"/v1/jobs/{job_id}"),
+            ("DELETE", f"/v1/jobs/{job_id}"),
+            ("GET", f"/v1/jobs/{job_id}/results/rays.csv"),
+        ):
             r = b.request(method, url)
             assert r.status_code == 404, (method, url, r.text)
             assert r.json()["detail"] == f"no job {job_id!r}"  # the same answer as for an unknown id
@@ -120,13 +130,16 @@ def test_uploads_size_and_content(keyed):
         job = tiny_job(name="with-terrain")
         job["scene"] = {"domain": {"min": [-500, -500, 0], "max": [500, 500, 300]}, "terrain": {"file": "mine.asc"}}
         job["sources"] = [{"position": [0, 0, 40]}]
-        r = a.post("/v1/jobs", files=[("job", ("job.json", json.dumps(job).encode())),
-                                      ("files", ("mine.asc", HILL.read_bytes()))])
+        r = a.post(
+            "/v1/jobs",
+            files=[("job", ("job.json", json.dumps(job).encode())), ("files", ("mine.asc", HILL.read_bytes()))],
+        )
         assert r.status_code == 202, r.text
         inputs = keyed.data_dir / "jobs" / r.json()["id"] / "inputs"
         assert (inputs / "mine.asc").read_bytes() == HILL.read_bytes()
-        r = a.post("/v1/jobs", files=[("job", ("job.json", json.dumps(job).encode())),
-                                      ("files", ("mine.asc", b"not a grid"))])
+        r = a.post(
+            "/v1/jobs", files=[("job", ("job.json", json.dumps(job).encode())), ("files", ("mine.asc", b"not a grid"))]
+        )
         assert r.status_code == 422 and r.json()["errors"][0]["field"] == "scene.terrain.file"
 
 
@@ -147,8 +160,10 @@ def test_path_traversal_is_rejected(keyed):
             r = a.post("/v1/jobs", json=job)
             assert r.status_code == 422, (name, r.text)
             assert r.json()["errors"][0]["field"].startswith("scene.terrain")  # the schema or the service
-        r = a.post("/v1/jobs", files=[("job", ("job.json", json.dumps(tiny_job()).encode())),
-                                      ("files", ("../up.asc", HILL.read_bytes()))])
+        r = a.post(
+            "/v1/jobs",
+            files=[("job", ("job.json", json.dumps(tiny_job()).encode())), ("files", ("../up.asc", HILL.read_bytes()))],
+        )
         assert r.status_code == 422 and r.json()["errors"][0]["field"] == "files"
         job_id = a.post("/v1/jobs", json=tiny_job()).json()["id"]
         for name in ("..%2F..%2Fjobs.sqlite3", "..%2Fresults", "%2E%2E", "report.json%00"):
@@ -184,8 +199,14 @@ def test_scenes_health_and_openapi(keyed):
         scenes = a.get("/v1/scenes").json()
         assert {"flat", "ridge"} <= {s["name"] for s in scenes}
         spec = a.get("/openapi.json").json()
-        assert {"/v1/jobs", "/v1/jobs/{job_id}", "/v1/jobs/{job_id}/results/{name}", "/v1/assets",
-                "/v1/scenes", "/v1/health"} <= set(spec["paths"])
+        assert {
+            "/v1/jobs",
+            "/v1/jobs/{job_id}",
+            "/v1/jobs/{job_id}/results/{name}",
+            "/v1/assets",
+            "/v1/scenes",
+            "/v1/health",
+        } <= set(spec["paths"])
         assert "Job" in spec["components"]["schemas"]
         assert a.get("/docs").status_code == 200
 
@@ -194,9 +215,24 @@ def test_no_key_server_refuses_public_bind(tmp_path):
     import subprocess
     import sys
 
-    r = subprocess.run([sys.executable, "-m", "bentray.service", "serve", "--host", "0.0.0.0", "--port", "1",
-                        "--data-dir", str(tmp_path)], capture_output=True, text=True, timeout=60,
-                       env={k: v for k, v in __import__("os").environ.items() if not k.startswith("BENTRAY_")})
+    r = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "bentray.service",
+            "serve",
+            "--host",
+            "0.0.0.0",
+            "--port",
+            "1",
+            "--data-dir",
+            str(tmp_path),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        env={k: v for k, v in __import__("os").environ.items() if not k.startswith("BENTRAY_")},
+    )
     assert r.returncode == 2 and "binds 127.0.0.1 only" in r.stderr
     with pytest.raises(httpx.TransportError):
         httpx.get("http://127.0.0.1:1/v1/health", timeout=1.0)

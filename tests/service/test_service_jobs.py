@@ -113,8 +113,14 @@ def test_cli_submit_wait_out_status_fetch(server, tmp_path, capsys):
     assert main(["fetch", job_id, "--out", str(tmp_path / "again"), "--name", "rays.csv", "--url", server.url]) == 0
     assert (tmp_path / "again" / "rays.csv").read_bytes() == (local / "rays.csv").read_bytes()
     bad = tmp_path / "bad.json"
-    bad.write_text(json.dumps({**tiny_job(), "rays": {"elevation_deg": {"min": 0, "max": 0, "count": 0},
-                                                      "max_time_s": 1, "max_reflections": 0}}))
+    bad.write_text(
+        json.dumps(
+            {
+                **tiny_job(),
+                "rays": {"elevation_deg": {"min": 0, "max": 0, "count": 0}, "max_time_s": 1, "max_reflections": 0},
+            }
+        )
+    )
     assert main(["submit", str(bad), "--url", server.url]) == 2
     assert "rays.elevation_deg.count: Input should be greater than or equal to 1" in capsys.readouterr().err
 
