@@ -25,6 +25,25 @@ STATUS_NAMES = {
 }
 
 # ---------------------------------------------------------------------------------------------
+# Output columns shared by every traversal kernel (kernels/traverse.py, baselines/trace_numerical.py,
+# experimental/traverse_linked.py). out_state (n, STATE_SIZE) float64, world frame:
+# ---------------------------------------------------------------------------------------------
+STATE_X = 0  # position x, y, z (m): columns STATE_X .. STATE_X + 2
+STATE_D = 3  # unit tangent dx, dy, dz: columns STATE_D .. STATE_D + 2
+STATE_TIME = 6  # travel time (s)
+STATE_LENGTH = 7  # arc length (m)
+STATE_SIZE = 8
+# out_counts (n, COUNT_SIZE) int64 of the analytic tracer (the numerical baselines share the first three
+# columns and keep their own after them: baselines/trace_numerical.py)
+COUNT_STATUS = 0  # STATUS_* end state
+COUNT_REFLECTIONS = 1
+COUNT_CROSSINGS = 2  # faces crossed into a neighbouring cell
+COUNT_NUDGES = 3  # nudges and slides (robustness events, physics.md section 5)
+COUNT_STEPS = 4  # segment steps (every curve set-up, zero-length ones included)
+COUNT_SAMPLES = 5  # path samples recorded
+COUNT_SIZE = 6
+
+# ---------------------------------------------------------------------------------------------
 # Boundary tags stored in CellMesh.neighbours where a face has no neighbouring cell.
 # Non-negative values are cell ids.
 # ---------------------------------------------------------------------------------------------
@@ -53,6 +72,27 @@ ON_FACE_REL = 1e-12
 # When a ray finds no exit (rounding at an edge or vertex), it is moved along its tangent by
 # NUDGE_REL * cell size and re-located by walking; such events are counted in the report.
 NUDGE_REL = 1e-9
+# Zero-length steps in a row (edge/vertex walks) before the ray is nudged: a walk around one edge
+# of a Delaunay mesh visits at most a few dozen cells.
+MAX_ZERO_STEPS = 64
+# A step shorter than TINY_STEP_REL * cell size makes no progress: a ray that starts on an edge shared by
+# many cells and moves within one of their faces (a source on a terrain-grid column, launched along a
+# grid line) can circle the edge with steps of 1e-10 m. MAX_ZERO_STEPS such steps in a row -> nudge.
+TINY_STEP_REL = 1e-6
+# Sliding: a stalled ray within SLIDE_DIST_REL * cell size of a face and moving along it (|d . m| <=
+# SLIDE_COS) sits in a zero-width channel of the piecewise-linear medium: the per-cell gradients on the
+# two sides of the face both push it back toward the face (a gradient jump the continuous medium does
+# not have), so the exact per-cell curves zig-zag across it with steps of 1e-8 m forever. It then
+# slides: x and d are projected onto the face plane and the next segment uses the two cells' mean
+# gradient without its normal part, so it stays in the plane until another face (counted as a nudge).
+SLIDE_DIST_REL = 1e-6
+SLIDE_COS = 1e-3
+# A ray that meets a reflecting face with |d . m| <= GRAZE_COS at a zero-length step (it sits on the
+# face, tangent to it, curving into it) slides along the face instead of reflecting without effect.
+GRAZE_COS = 1e-12
+# A ray that crosses the same face back and forth PINGPONG_SLIDE times in a row while moving along it
+# (|d . m| <= SLIDE_COS) is in such a channel too, with steps too long to count as stalls: it slides.
+PINGPONG_SLIDE = 4
 # Walking steps allowed for one re-location before the ray is declared lost.
 MAX_WALK = 64
 # Consecutive nudges allowed at one place before the ray is declared lost.

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from bentray.engine.kernels.field import FGEO_SIZE, FIELD_COHERENT, FIELD_INCOHERENT, FIELD_OFF
+from bentray.engine.kernels.field import FGEO_SIZE, FIELD_COHERENT, FIELD_INCOHERENT, FIELD_OFF, FieldAcc
 
 # Reflections remembered per ray for the ground factors (incoherent) and the coherent Q product.
 # Beyond it, further reflections still reflect but keep the ground factor of the first 32.
@@ -120,9 +120,9 @@ class FieldBuffers:
             for a in (self.energy, self.hits, self.c_energy, self.c_perp2, self.c_time, self.c_length, self.c_ray)
         )
 
-    def kernel_tuple(self) -> tuple:
-        """The ``fld`` tuple of traverse.trace_one (order is part of the kernel contract)."""
-        return (
+    def kernel_tuple(self) -> FieldAcc:
+        """The kernels' view of these accumulators (kernels.field.FieldAcc; arrays shared, not copied)."""
+        return FieldAcc(
             np.int64(self.code),
             self.fgeo,
             self.fshape,
@@ -207,10 +207,10 @@ class FieldBuffers:
         )
 
 
-def no_field_tuple(n_rays: int) -> tuple[tuple, np.ndarray]:
-    """A FIELD_OFF ``fld`` tuple with minimal dummy arrays, and (n_rays, 0) weights."""
+def no_field_tuple(n_rays: int) -> tuple[FieldAcc, np.ndarray]:
+    """A FIELD_OFF FieldAcc with minimal dummy arrays (the same types as a real one), and (n_rays, 0) weights."""
     z3 = np.zeros((1, 1, 1))
-    fld = (
+    fld = FieldAcc(
         np.int64(FIELD_OFF),
         np.zeros(FGEO_SIZE),
         np.ones(3, dtype=np.int64),

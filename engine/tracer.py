@@ -5,9 +5,23 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from bentray.engine.constants import CURVE_CODES
+from bentray.engine.constants import (
+    COUNT_CROSSINGS,
+    COUNT_NUDGES,
+    COUNT_REFLECTIONS,
+    COUNT_SAMPLES,
+    COUNT_SIZE,
+    COUNT_STATUS,
+    COUNT_STEPS,
+    CURVE_CODES,
+    STATE_D,
+    STATE_LENGTH,
+    STATE_SIZE,
+    STATE_TIME,
+    STATE_X,
+)
 from bentray.engine.field_buffers import REFLECTION_RECORD_CAP, FieldBuffers, no_field_tuple
-from bentray.engine.kernels.traverse import trace_rays
+from bentray.engine.kernels.traverse import PathBuffers, RayParams, Rays, trace_rays
 from bentray.engine.mesh.cells import CellMesh
 from bentray.engine.result import RayPaths, TraceResult
 from bentray.engine.wind import check_wind
@@ -73,8 +87,8 @@ def trace(
     path_t = np.zeros(n_slots)
     path_s = np.zeros(n_slots)
     dt_sample = max_time_s / max(path_samples, 1)
-    out_state = np.zeros((n, 8))
-    out_counts = np.zeros((n, 6), dtype=np.int64)
+    out_state = np.zeros((n, STATE_SIZE))
+    out_counts = np.zeros((n, COUNT_SIZE), dtype=np.int64)
     if field is not None:
         if field.weights.shape[0] != n:
             raise ValueError("field weights must have one row per ray")
@@ -86,42 +100,22 @@ def trace(
         refl_cap = 1
     refl_cos = np.zeros((n, refl_cap))
     refl_mat = np.zeros((n, refl_cap), dtype=np.int64)
-    trace_rays(
-        mesh.planes,
-        mesh.neighbours,
-        mesh.neighbour_face,
-        mesh.media_ref,
-        mesh.ref_point,
-        mesh.gradient,
-        mesh.size,
-        mesh.face_material,
+    prm = RayParams(
         CURVE_CODES[curve],
         float(c_ref),
         wind_code,
         wind_params,
-        origins,
-        directions,
-        start_cells,
         float(max_time_s),
         int(max_reflections),
         int(max_steps),
         record,
         float(dt_sample),
-        cap,
-        path_pts,
-        path_t,
-        path_s,
-        fld,
-        f_weights,
-        n_slots,
-        refl_cos,
-        refl_mat,
-        out_state,
-        out_counts,
     )
+    rays = Rays(origins, directions, start_cells, f_weights, refl_cos, refl_mat, out_state, out_counts)
+    trace_rays(mesh, prm, fld, PathBuffers(path_pts, path_t, path_s, cap), rays, n_slots)
     paths = None
     if record:
-        counts = out_counts[:, 5]
+        counts = out_counts[:, COUNT_SAMPLES]
         offsets = np.zeros(n + 1, dtype=np.int64)
         np.cumsum(counts, out=offsets[1:])
         keep = (np.arange(cap)[None, :] < counts[:, None]).reshape(-1)
@@ -131,16 +125,16 @@ def trace(
         source=np.zeros(n, dtype=np.int64),
         elevation_deg=nan.copy(),
         azimuth_deg=nan.copy(),
-        position=out_state[:, 0:3].copy(),
-        direction=out_state[:, 3:6].copy(),
-        time_s=out_state[:, 6].copy(),
-        length_m=out_state[:, 7].copy(),
-        reflections=out_counts[:, 1].copy(),
-        status=out_counts[:, 0].astype(np.int8),
-        crossings=out_counts[:, 2].copy(),
-        nudges=out_counts[:, 3].copy(),
+        position=out_state[:, STATE_X : STATE_X + 3].copy(),
+        direction=out_state[:, STATE_D : STATE_D + 3].copy(),
+        time_s=out_state[:, STATE_TIME].copy(),
+        length_m=out_state[:, STATE_LENGTH].copy(),
+        reflections=out_counts[:, COUNT_REFLECTIONS].copy(),
+        status=out_counts[:, COUNT_STATUS].astype(np.int8),
+        crossings=out_counts[:, COUNT_CROSSINGS].copy(),
+        nudges=out_counts[:, COUNT_NUDGES].copy(),
         paths=paths,
-        steps=out_counts[:, 4].copy(),
+        steps=out_counts[:, COUNT_STEPS].copy(),
         reflection_cos=refl_cos if field is not None else None,
         reflection_material=refl_mat if field is not None else None,
     )
