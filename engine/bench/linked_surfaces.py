@@ -4,7 +4,7 @@ For ``desert`` and ``christmas`` at medium and high resolution (the surface tria
 
 - embedded: scene_meshes.build_scene_mesh (terrain-following conforming tets at the terrain's own spacing;
   ground, walls and roofs are mesh faces), traced by tracer.trace;
-- linked: mesh/linked.py build_linked_mesh: the same layer levels (curvature rule, delta 1e-3, absolute z)
+- linked: experimental/linked_mesh.py build_linked_mesh: the same layer levels (curvature rule, delta 1e-3, absolute z)
   over flat ground at the lowest surface point, horizontal spacing fixed at the scene's *medium* terrain
   spacing for both resolutions (the media mesh does not see the surfaces), the scene's triangles linked to
   the cells they overlap; traced by linked_media.trace_linked.
@@ -59,7 +59,7 @@ KW = {"max_time_s": 10.0, "max_reflections": 3}
 
 
 def _linked(name: str, resolution: str, sc: SceneMesh) -> tuple[Any, float]:
-    from bentray.engine.mesh.linked import build_linked_mesh, locate_in_linked_mesh
+    from bentray.engine.experimental.linked_mesh import build_linked_mesh, locate_in_linked_mesh
     from bentray.engine.mesh.sizing import curvature_layers
     from bentray.scenes.library.registry import get_builtin
     from bentray.scenes.profile_models import profile_from_spec
@@ -90,7 +90,7 @@ def _linked(name: str, resolution: str, sc: SceneMesh) -> tuple[Any, float]:
 
 @on_timing_threads
 def _rows(name: str, resolution: str, count: int, repeats: int, min_total: float) -> list[dict[str, Any]]:
-    from bentray.engine.linked_media import trace_linked
+    from bentray.engine.experimental.linked_media import trace_linked
 
     sc = build_scene_mesh(name, count, resolution=resolution)
     n = count
@@ -157,7 +157,7 @@ def _rows(name: str, resolution: str, count: int, repeats: int, min_total: float
 
 def _warm_up() -> None:
     """Compile the mesh builders' and the overlap test's Numba kernels on tiny inputs (not timed)."""
-    from bentray.engine.mesh.linked import link_cells
+    from bentray.engine.experimental.linked_mesh import link_cells
 
     tet = np.array([[[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]])
     link_cells(tet, np.array([[[0.1, 0.1, 0.1], [2, 0, 0], [0, 2, 0]]]))

@@ -1,5 +1,5 @@
-"""Surfaces linked to the cells they overlap (paper Appendix C): engine/mesh/linked.py,
-engine/kernels/traverse_linked.py, engine/linked_media.py.
+"""Surfaces linked to the cells they overlap (paper Appendix C): engine/experimental/linked_mesh.py,
+engine/experimental/traverse_linked.py, engine/experimental/linked_media.py.
 
 References: mirror images of straight rays over a tilted plane and off a box building (homogeneous
 medium), the embedded (terrain-following) traversal on the same surface with a medium both meshes
@@ -15,9 +15,8 @@ from scipy.optimize import linprog
 from scipy.spatial import Delaunay
 
 from bentray.engine.constants import BOUNDARY_REFLECT, STATUS_EXITED, STATUS_REFLECTION_LIMIT
-from bentray.engine.linked_media import trace_linked
-from bentray.engine.media import build_terrain_media
-from bentray.engine.mesh.linked import (
+from bentray.engine.experimental.linked_media import trace_linked
+from bentray.engine.experimental.linked_mesh import (
     KIND_GROUND,
     KIND_ROOF,
     KIND_WALL,
@@ -25,6 +24,7 @@ from bentray.engine.mesh.linked import (
     link_cells,
     locate_in_linked_mesh,
 )
+from bentray.engine.media import build_terrain_media
 from bentray.engine.mesh.terrain import build_terrain_mesh, locate_in_terrain_mesh
 from bentray.engine.surfaces import Footprint, HeightGrid, SceneSurfaces, TriangleSurface
 from bentray.engine.tracer import trace

@@ -1,4 +1,9 @@
-"""Traversal with surfaces linked to cells (paper Appendix C; mesh: engine/mesh/linked.py).
+"""Traversal with surfaces linked to cells (paper Appendix C; mesh: experimental/linked_mesh.py). FROZEN.
+
+A fork of the main loop (kernels/traverse.py) as it stood before the kernel-contract refactor, with the
+helpers it used copied in below: it lacks the main loop's slide, ping-pong and graze fixes and no job can
+select it; kept only for the Appendix C bench table (bench/linked_surfaces.py). Do not extend it.
+
 
 Per cell, as kernels/traverse.py: the curve from the cell's linear media model, its first exit among the
 face planes (curves.find_exit). Then every triangle linked to the cell is tested the same way: its plane
@@ -29,7 +34,10 @@ import numpy as np
 from bentray.engine.constants import (
     BOUNDARY_OPEN,
     BOUNDARY_REFLECT,
+    FACE_UNUSED,
     MAX_NUDGES_IN_A_ROW,
+    MAX_WALK,
+    MAX_ZERO_STEPS,
     NJIT_FLAGS,
     NUDGE_REL,
     ON_FACE_REL,
@@ -42,7 +50,112 @@ from bentray.engine.constants import (
     STATUS_TIME_LIMIT,
 )
 from bentray.engine.kernels import curves
-from bentray.engine.kernels.traverse import MAX_ZERO_STEPS, _emit, _emit_segment, _media_at, _nudge
+
+
+# --- helpers of kernels/traverse.py at the fork (frozen copies) ---
+@nb.njit(**NJIT_FLAGS)
+def _media_at(media_ref, ref_point, gradient, cell, x):
+    return (
+        media_ref[cell]
+        + gradient[cell, 0] * (x[0] - ref_point[cell, 0])
+        + gradient[cell, 1] * (x[1] - ref_point[cell, 1])
+        + gradient[cell, 2] * (x[2] - ref_point[cell, 2])
+    )
+
+
+@nb.njit(**NJIT_FLAGS)
+def _walk(planes, neighbours, cell, x):
+    """Re-locate x by walking from ``cell`` toward the most violated face.
+
+    Returns (cell, outcome): outcome 0 = inside, 1 = beyond an open boundary, 2 = beyond a
+    reflecting boundary (x is then projected back onto that plane), 3 = walk did not converge.
+    """
+    for _ in range(MAX_WALK):
+        worst = 0.0
+        worst_face = -1
+        for f in range(planes.shape[1]):
+            if neighbours[cell, f] == FACE_UNUSED:
+                continue
+            d = planes[cell, f, 0] * x[0] + planes[cell, f, 1] * x[1] + planes[cell, f, 2] * x[2]
+            d -= planes[cell, f, 3]
+            if d > worst:
+                worst = d
+                worst_face = f
+        if worst_face < 0:
+            return cell, 0
+        nxt = neighbours[cell, worst_face]
+        if nxt >= 0:
+            cell = nxt
+            continue
+        if nxt == BOUNDARY_OPEN:
+            return cell, 1
+        for i in range(3):
+            x[i] -= worst * planes[cell, worst_face, i]
+        return cell, 2
+    return cell, 3
+
+
+@nb.njit(**NJIT_FLAGS)
+def _nudge(planes, neighbours, cell, x, d, eta):
+    """Move x by eta metres along d and re-locate it by walking: (cell, status) with status RUNNING,
+    EXITED (beyond an open boundary) or LOST (the walk did not converge)."""
+    for i in range(3):
+        x[i] += eta * d[i]
+    cell, outcome = _walk(planes, neighbours, cell, x)
+    if outcome == 1:
+        return cell, STATUS_EXITED
+    if outcome == 3:
+        return cell, STATUS_LOST
+    return cell, STATUS_RUNNING
+
+
+@nb.njit(**NJIT_FLAGS)
+def _emit(path_pts, path_t, path_s, base, cap, count, x, t, s):
+    if count < cap:
+        k = base + count
+        path_pts[k, 0] = x[0]
+        path_pts[k, 1] = x[1]
+        path_pts[k, 2] = x[2]
+        path_t[k] = t
+        path_s[k] = s
+        return count + 1
+    return count
+
+
+@nb.njit(**NJIT_FLAGS)
+def _emit_segment(
+    curve,
+    cs,
+    x0,
+    d0,
+    param_end,
+    t0,
+    s0,
+    t_end,
+    c_ref,
+    t_last,
+    dt_sample,
+    path_pts,
+    path_t,
+    path_s,
+    base,
+    cap,
+    count,
+    xs,
+    ts,
+):
+    """Interior samples of a segment spanning more than dt_sample (evaluated on the curve)."""
+    n_int = int((t_end - t0) / dt_sample)
+    if n_int > 2 * cap:
+        n_int = 2 * cap
+    for j in range(1, n_int + 1):
+        prm = param_end * j / (n_int + 1)
+        ds = curves.evaluate(curve, cs, x0, d0, prm, xs, ts)
+        tt = t0 + curves.time_at(curve, cs, prm, c_ref)
+        count = _emit(path_pts, path_t, path_s, base, cap, count, xs, tt, s0 + ds)
+        t_last = tt
+    return count, t_last
+
 
 # Barycentric slack of the point-in-triangle test (relative to the triangle's edges): 1e-9 of a 30 m
 # triangle is 30 nm. A ray through a shared edge is accepted by both triangles (no leak through the

@@ -1,7 +1,7 @@
 """Python wrapper of the linked-surface traversal (Appendix C): validates, allocates, returns a TraceResult.
 
-The mesh comes from engine/mesh/linked.py ``build_linked_mesh``; the kernel is
-engine/kernels/traverse_linked.py. Results compare directly with ``engine.tracer.trace`` on the embedded
+The mesh comes from engine/experimental/linked_mesh.py ``build_linked_mesh``; the kernel is
+engine/experimental/traverse_linked.py. Results compare directly with ``engine.tracer.trace`` on the embedded
 (terrain-following) mesh. No field accumulation and no wind (see the kernel's docstring).
 """
 
@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from bentray.engine.constants import CURVE_CODES
-from bentray.engine.kernels.traverse_linked import trace_linked_rays
-from bentray.engine.mesh.linked import LinkedMesh
+from bentray.engine.experimental.linked_mesh import LinkedMesh
+from bentray.engine.experimental.traverse_linked import trace_linked_rays
 from bentray.engine.result import TraceResult, gather_paths, kernel_trace_result
 from bentray.engine.tracer import path_capacity, ray_inputs
 
