@@ -100,6 +100,13 @@ MAX_NUDGES_IN_A_ROW = 8
 # Bisection iterations for the n-linear curve's plane intersections: 2^-60 of the bracket is below
 # float64 resolution of any bracket shorter than 1e3 cell sizes.
 NLINEAR_BISECTION_ITERS = 60
+# An n-linear ray whose direction is within NLINEAR_STRAIGHT_COS of the gradient axis (cos of the angle to
+# the plane normal to e_z) is traced as a straight line: the catenary's horizontal extent inside any cell
+# is then below 1e-12 of its length, far under the other errors of the method.
+NLINEAR_STRAIGHT_COS = 1e-12
+# Doublings allowed when bracketing an n-linear root from above (the catenary grows like cosh, so a
+# handful suffice; 200 doublings of a metre overflow float64 long before).
+NLINEAR_MAX_DOUBLINGS = 200
 # Newton iterations for inverting the cubic time equation t(sigma) = t_target inside one segment;
 # the iteration is safeguarded by a bracket and converges quadratically in 3-5 steps.
 TIME_SOLVE_ITERS = 50

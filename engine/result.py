@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from bentray.engine.constants import STATUS_NAMES
+from bentray.engine.constants import STATE_D, STATE_LENGTH, STATE_TIME, STATE_X, STATUS_NAMES
 
 
 @dataclass
@@ -162,18 +162,18 @@ def kernel_trace_result(
     paths: RayPaths | None = None,
     **extra: Any,
 ) -> TraceResult:
-    """TraceResult from a kernel's (n, 8) final states (x, d, time, length) and its per-ray counters;
-    launch angles are left NaN and sources 0 (the job fills them in)."""
+    """TraceResult from a kernel's (n, STATE_SIZE) final states (columns constants.STATE_*) and its per-ray
+    counters; launch angles are left NaN and sources 0 (the job fills them in)."""
     n = out_state.shape[0]
     nan = np.full(n, np.nan)
     return TraceResult(
         source=np.zeros(n, dtype=np.int64),
         elevation_deg=nan.copy(),
         azimuth_deg=nan.copy(),
-        position=out_state[:, 0:3].copy(),
-        direction=out_state[:, 3:6].copy(),
-        time_s=out_state[:, 6].copy(),
-        length_m=out_state[:, 7].copy(),
+        position=out_state[:, STATE_X : STATE_X + 3].copy(),
+        direction=out_state[:, STATE_D : STATE_D + 3].copy(),
+        time_s=out_state[:, STATE_TIME].copy(),
+        length_m=out_state[:, STATE_LENGTH].copy(),
         reflections=reflections.copy(),
         status=status.astype(np.int8),
         crossings=crossings.copy(),

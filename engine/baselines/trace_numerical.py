@@ -56,8 +56,16 @@ from bentray.engine.baselines.mesh_media import WALK_FAILED, walk
 from bentray.engine.constants import (
     BOUNDARY_OPEN,
     BOUNDARY_REFLECT,
+    COUNT_CROSSINGS,
+    COUNT_REFLECTIONS,
+    COUNT_STATUS,
     NJIT_FLAGS,
     PARALLEL_FLAGS,
+    STATE_D,
+    STATE_LENGTH,
+    STATE_SIZE,
+    STATE_TIME,
+    STATE_X,
     STATUS_EXITED,
     STATUS_LOST,
     STATUS_REFLECTION_LIMIT,
@@ -86,6 +94,15 @@ MAX_GRAZE_HALVINGS = 8
 MAX_RETARGETS = 8
 
 EVENT_NONE = 0
+
+# out_counts columns after the three shared with the analytic tracer (constants.COUNT_STATUS ..
+# COUNT_CROSSINGS): the integrators' own counters.
+NCOUNT_STEPS = 3  # accepted steps
+NCOUNT_RESTARTS = 4  # steps restarted to land on a boundary or the time limit
+NCOUNT_REJECTED = 5  # steps rejected by the adaptive control
+NCOUNT_EVALS = 6  # right-hand-side evaluations
+NCOUNT_SAMPLES = 7  # path samples recorded
+NCOUNT_SIZE = 8
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -344,10 +361,11 @@ def trace_one(
     out_state,
     out_counts,
 ):
-    """Integrate one ray. out_state (8,): x, y, z, dx, dy, dz, time_s, length_m.
+    """Integrate one ray. out_state (STATE_SIZE,): columns constants.STATE_* (x, d, time_s, length_m).
 
-    out_counts (8,): status, reflections, cell crossings, accepted steps, restarts, rejected steps,
-    right-hand-side evaluations, path samples.
+    out_counts (NCOUNT_SIZE,): status, reflections, cell crossings (constants.COUNT_STATUS, _REFLECTIONS,
+    _CROSSINGS, shared with the analytic tracer), then NCOUNT_STEPS (accepted steps), NCOUNT_RESTARTS,
+    NCOUNT_REJECTED (rejected steps), NCOUNT_EVALS (right-hand-side evaluations), NCOUNT_SAMPLES (path samples).
     """
     # Small shared inputs are copied per ray: every call that passes an array touches its reference
     # count (an atomic add), and two threads hitting the same shared counters serialise each other.
@@ -505,18 +523,18 @@ def trace_one(
         count = _emit(path_pts, path_t, path_s, base, cap, count, y0)
     pn = math.sqrt(y0[3] ** 2 + y0[4] ** 2 + y0[5] ** 2)
     for i in range(3):
-        out_state[i] = y0[i]
-        out_state[3 + i] = y0[3 + i] / pn if pn > 0.0 else d_start[i] / nrm
-    out_state[6] = y0[6]
-    out_state[7] = y0[7]
-    out_counts[0] = status
-    out_counts[1] = reflections
-    out_counts[2] = crossings
-    out_counts[3] = steps
-    out_counts[4] = restarts
-    out_counts[5] = rejected
-    out_counts[6] = evals
-    out_counts[7] = count
+        out_state[STATE_X + i] = y0[i]
+        out_state[STATE_D + i] = y0[3 + i] / pn if pn > 0.0 else d_start[i] / nrm
+    out_state[STATE_TIME] = y0[6]
+    out_state[STATE_LENGTH] = y0[7]
+    out_counts[COUNT_STATUS] = status
+    out_counts[COUNT_REFLECTIONS] = reflections
+    out_counts[COUNT_CROSSINGS] = crossings
+    out_counts[NCOUNT_STEPS] = steps
+    out_counts[NCOUNT_RESTARTS] = restarts
+    out_counts[NCOUNT_REJECTED] = rejected
+    out_counts[NCOUNT_EVALS] = evals
+    out_counts[NCOUNT_SAMPLES] = count
 
 
 @nb.njit(**PARALLEL_FLAGS)
@@ -677,8 +695,8 @@ def trace_numerical(
     path_pts = np.zeros((n_slots, 3))
     path_t = np.zeros(n_slots)
     path_s = np.zeros(n_slots)
-    out_state = np.zeros((n, 8))
-    out_counts = np.zeros((n, 8), dtype=np.int64)
+    out_state = np.zeros((n, STATE_SIZE))
+    out_counts = np.zeros((n, NCOUNT_SIZE), dtype=np.int64)
     trace_rays_numerical(
         METHOD_CODES[method],
         med,
@@ -702,17 +720,17 @@ def trace_numerical(
         out_state,
         out_counts,
     )
-    paths = gather_paths(path_pts, path_t, path_s, out_counts[:, 7], cap) if record else None
+    paths = gather_paths(path_pts, path_t, path_s, out_counts[:, NCOUNT_SAMPLES], cap) if record else None
     if stats is not None:
-        stats["rejected"] = out_counts[:, 5].copy()
-        stats["evaluations"] = out_counts[:, 6].copy()
+        stats["rejected"] = out_counts[:, NCOUNT_REJECTED].copy()
+        stats["evaluations"] = out_counts[:, NCOUNT_EVALS].copy()
     result = kernel_trace_result(
         out_state,
-        status=out_counts[:, 0],
-        reflections=out_counts[:, 1],
-        crossings=out_counts[:, 2],
+        status=out_counts[:, COUNT_STATUS],
+        reflections=out_counts[:, COUNT_REFLECTIONS],
+        crossings=out_counts[:, COUNT_CROSSINGS],
         nudges=np.zeros(n, dtype=np.int64),
-        steps=out_counts[:, 3],
+        steps=out_counts[:, NCOUNT_STEPS],
         paths=paths,
     )
-    return result, out_counts[:, 4].copy()
+    return result, out_counts[:, NCOUNT_RESTARTS].copy()

@@ -27,6 +27,7 @@ import time
 import numpy as np
 
 BOUNDARY_REFLECT = -2
+_scenes_cache: dict = {}
 
 
 def _buffers(mode: str, n: int, lo: np.ndarray, hi: np.ndarray, n_slots: int):
@@ -95,7 +96,8 @@ def save(path: str) -> None:
 
     out: dict[str, np.ndarray] = {}
     winds = _winds()
-    for name, (mesh, o, d, cells) in _scenes().items():
+    _scenes_cache.update(_scenes())
+    for name, (mesh, o, d, cells) in _scenes_cache.items():
         mesh = _soft(mesh)
         lo = mesh.ref_point.min(axis=0)
         hi = mesh.ref_point.max(axis=0)
@@ -114,6 +116,21 @@ def save(path: str) -> None:
             res = trace(mesh, "parabolic", 340.0, o[:n_p], d[:n_p], cells[:n_p], wind=wind, path_samples=50, **kw)
             _store(out, f"{key}/paths", res, None)
             print(f"{key}: {time.perf_counter() - t0:.1f} s, crossings {int(res.crossings.sum())}", flush=True)
+    # the numerical baselines share the out_state / out_counts columns: rk4 and dopri5 on the A-LD slab mesh
+    from bentray.engine.baselines.trace_numerical import trace_numerical
+
+    mesh, o, d, cells = _scenes_cache["ald_fan"]
+    for method in ("rk4", "dopri5"):
+        stats: dict[str, np.ndarray] = {}
+        res, restarts = trace_numerical(
+            method, "mesh", mesh=mesh, origins=o[::6], directions=d[::6], start_cells=cells[::6], max_time_s=3.0,
+            step_m=2.0, tolerance=1e-7, path_samples=20, domain_min=np.array([-50.0, -50.0, 0.0]),
+            domain_max=np.array([4000.0, 50.0, 2600.0]), stats=stats,
+        )  # fmt: skip
+        _store(out, f"baseline/{method}", res, None)
+        out[f"baseline/{method}/restarts"] = restarts
+        out[f"baseline/{method}/rejected"] = stats["rejected"]
+        out[f"baseline/{method}/evaluations"] = stats["evaluations"]
     np.savez(path, **out)
     print(f"saved {len(out)} arrays to {path}")
 

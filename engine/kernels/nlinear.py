@@ -21,16 +21,8 @@ import math
 
 import numba as nb
 
-from bentray.engine.constants import NJIT_FLAGS, NLINEAR_BISECTION_ITERS
+from bentray.engine.constants import NJIT_FLAGS, NLINEAR_BISECTION_ITERS, NLINEAR_MAX_DOUBLINGS, NLINEAR_STRAIGHT_COS
 from bentray.engine.kernels.roots import NO_ROOT, face_exit_parameter, sinh_over_x
-
-# A ray whose direction is within STRAIGHT_COS of the gradient axis (cos of the angle to the plane
-# normal to e_z) is traced as a straight line: the catenary's horizontal extent inside any cell is
-# then below 1e-12 of its length, far under the other errors of the method.
-STRAIGHT_COS = 1e-12
-# Doublings allowed when bracketing a root from above (the catenary grows like cosh, so a handful
-# suffice; 200 doublings of a metre overflow float64 long before).
-MAX_DOUBLINGS = 200
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -53,7 +45,7 @@ def setup(n0: float, g, d0, er_out, ez_out):
     ry = d0[1] - sin0 * ez_out[1]
     rz = d0[2] - sin0 * ez_out[2]
     cos0 = math.sqrt(rx * rx + ry * ry + rz * rz)
-    if cos0 < STRAIGHT_COS:
+    if cos0 < NLINEAR_STRAIGHT_COS:
         for i in range(3):
             er_out[i] = d0[i]
         return True, alpha, n0, 0.0, gd
@@ -125,7 +117,7 @@ def face_exit(mx, my, mz, h, x0, er, ez, alpha, xi, u0, is_entry, on_face_tol, s
             return NO_ROOT
         step = size if size > 0.0 else 1.0
         hi = lo + step
-        for _ in range(MAX_DOUBLINGS):
+        for _ in range(NLINEAR_MAX_DOUBLINGS):
             if _plane_value(c, a, b, alpha, xi, u0, hi) > 0.0:
                 return _bisect(c, a, b, alpha, xi, u0, lo, hi)
             step *= 2.0

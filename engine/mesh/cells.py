@@ -19,7 +19,8 @@ from bentray.engine.constants import BOUNDARY_OPEN, BOUNDARY_REFLECT, FACE_UNUSE
 
 
 class CellMesh(NamedTuple):
-    """Struct-of-arrays media mesh consumed by the kernels.
+    """Struct-of-arrays media mesh consumed by the kernels (passed to them as is: numba takes a NamedTuple
+    of arrays as one argument and reads its fields by name).
 
     planes : (n_cells, K, 4) float64
         Face planes ``(mx, my, mz, h)``: outward unit normal m and offset h; the cell is
