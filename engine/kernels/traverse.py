@@ -20,6 +20,18 @@ reflection and the end point, into a fixed per-ray slice of the output buffers.
 Optional wind (engine/wind.py): each ray sees the effective medium c + u(x) . e with e its horizontal
 launch azimuth; the wind's value at each entry point and its exact gradient at the middle of the straight
 chord through the cell are added to the cell's model (no per-cell wind arrays).
+
+Kernel contract (structs, not long argument lists): ``trace_rays(mesh, prm, fld, paths, rays, n_slots)``
+with mesh a mesh.cells.CellMesh, prm a :class:`RayParams`, fld a field.FieldAcc, paths a
+:class:`PathBuffers` and rays a :class:`Rays` (per-ray inputs and the out_state / out_counts outputs,
+columns constants.STATE_* / COUNT_*). Tolerances live in engine/constants.py. One ray's life, in order:
+
+- :func:`_new_ray` builds its :class:`Ray` (state arrays and scratch; per-ray extra state goes here);
+- :func:`_step` per segment: :func:`_cell_medium` (the cell's model at x, wind, slide gradient), the
+  curve set-up and first exit, then one of :func:`_resolve_stall` (nudge or slide), :func:`_finish_at_time`
+  (hook: segment to max_time) or :func:`_advance` (hook: segment to the exit) followed by
+  :func:`_cross_face` (hook: into the neighbour), :func:`_reflect` (hook: specular reflection) or the exit;
+- :func:`_finish` (hook: the end) deposits the pending field time and writes the outputs.
 """
 
 from __future__ import annotations
