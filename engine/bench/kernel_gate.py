@@ -116,6 +116,20 @@ def save(path: str) -> None:
             res = trace(mesh, "parabolic", 340.0, o[:n_p], d[:n_p], cells[:n_p], wind=wind, path_samples=50, **kw)
             _store(out, f"{key}/paths", res, None)
             print(f"{key}: {time.perf_counter() - t0:.1f} s, crossings {int(res.crossings.sum())}", flush=True)
+    # the other two curve kinds on the same geometry (media requantified as bench/breakdown.py does)
+    from bentray.engine.bench.breakdown import _requantify
+    from bentray.engine.bench.scene_meshes import SceneMesh
+
+    for name in ("ald_fan", "desert"):
+        mesh, o, d, cells = _scenes_cache[name]
+        for curve in ("n_linear", "circular"):
+            cm = _soft(_requantify(SceneMesh(name, mesh, o, d, cells, 0.0), curve))
+            kw = {"max_time_s": 10.0, "max_reflections": 30}
+            key = f"{name}/{curve}"
+            _store(out, f"{key}/wind", trace(cm, curve, 340.0, o, d, cells, wind=winds[name], **kw), None)
+            buf = _buffers("incoherent", len(o), cm.ref_point.min(axis=0) - 50.0, cm.ref_point.max(axis=0) + 50.0, 3)
+            _store(out, f"{key}/incoherent", trace(cm, curve, 340.0, o, d, cells, field=buf, **kw), buf)
+            print(f"{key}: done", flush=True)
     # the numerical baselines share the out_state / out_counts columns: rk4 and dopri5 on the A-LD slab mesh
     from bentray.engine.baselines.trace_numerical import trace_numerical
 
