@@ -24,17 +24,13 @@ chord through the cell are added to the cell's model (no per-cell wind arrays).
 Kernel contract (structs, not long argument lists): ``trace_rays(mesh, prm, fld, paths, rays, n_slots)``
 with mesh a mesh.cells.CellMesh, prm a :class:`RayParams`, fld a field.FieldAcc, paths a
 :class:`PathBuffers` and rays a :class:`Rays` (per-ray inputs and the out_state / out_counts outputs,
-columns constants.STATE_* / COUNT_*). Tolerances live in engine/constants.py. The steps are plain njit functions, not
-``inline="always"``: numba's IR inlining of a function taking these structs, with early returns, keeps a
-reference-count update per struct member per call (measured: 40x slower than the plain call, which LLVM
-inlines and prunes). One ray's life, in order:
-
-- :func:`_new_ray` builds its :class:`Ray` (state arrays and scratch; per-ray extra state goes here);
-- :func:`_step` per segment: :func:`_cell_medium` (the cell's model at x, wind, slide gradient), the
-  curve set-up and first exit, then one of :func:`_resolve_stall` (nudge or slide), :func:`_finish_at_time`
-  (hook: segment to max_time) or :func:`_advance` (hook: segment to the exit) followed by
-  :func:`_cross_face` (hook: into the neighbour), :func:`_reflect` (hook: specular reflection) or the exit;
-- :func:`_finish` (hook: the end) deposits the pending field time and writes the outputs.
+columns constants.STATE_* / COUNT_*); the ray's own field state is one field.RayField. Tolerances live in
+engine/constants.py. The per-ray loop of trace_one is kept as one function with its state in local
+scalars: a split into step functions over a per-ray state struct (arrays) was bit-identical but measured
+2.3-2.8x slower (crossings per second, desert scene), so only the rare events are helpers. The places
+where per-ray extra state (paraxial derivatives, beam deposit) is updated are marked ``HOOK (a)`` (after
+each segment inside a cell, also the last one at max_time), ``HOOK (b)`` (face crossing into a neighbour),
+``HOOK (c)`` (specular reflection) and ``HOOK (d)`` (the end).
 """
 
 from __future__ import annotations
@@ -52,7 +48,6 @@ from bentray.engine.constants import (
     COUNT_NUDGES,
     COUNT_REFLECTIONS,
     COUNT_SAMPLES,
-    COUNT_SIZE,
     COUNT_STATUS,
     COUNT_STEPS,
     FACE_UNUSED,
@@ -81,24 +76,6 @@ from bentray.engine.constants import (
 )
 from bentray.engine.kernels import curves, field
 from bentray.engine.wind import WIND_NONE, effective_quantity
-
-# ---------------------------------------------------------------------------------------------
-# Per-ray state (Ray.ns int64, Ray.fs float64). ns[0:COUNT_SIZE] has the out_counts layout
-# (constants.COUNT_*: status, reflections, crossings, nudges, steps, samples) and is copied there at the end.
-# ---------------------------------------------------------------------------------------------
-NS_CELL = COUNT_SIZE  # current cell (-1: the start point is not in the mesh)
-NS_ENTRY = COUNT_SIZE + 1  # face of the current cell the ray entered through (-1: none; excluded from the exit)
-NS_NUDGE_RUN = COUNT_SIZE + 2  # nudges in a row without a step of positive length
-NS_ZERO_RUN = COUNT_SIZE + 3  # zero-length / tiny steps in a row
-NS_SLIDE_FACE = COUNT_SIZE + 4  # face the next segment slides along (-1: none)
-NS_PREV_CELL = COUNT_SIZE + 5  # cell before the last crossing (ping-pong detection)
-NS_PP_RUN = COUNT_SIZE + 6  # crossings back and forth across one face in a row, moving along it
-NS_WIND = COUNT_SIZE + 7  # this ray's wind code (WIND_NONE for a vertical launch: no azimuth)
-NS_SIZE = COUNT_SIZE + 8
-FS_TIME = 0  # travel time (s)
-FS_LENGTH = 1  # arc length (m)
-FS_T_LAST = 2  # time of the last recorded path sample (s)
-FS_SIZE = 3
 
 
 class RayParams(NamedTuple):
@@ -148,46 +125,10 @@ class Rays(NamedTuple):
     out_counts: np.ndarray
 
 
-class Ray(NamedTuple):
-    """One ray in flight: its state (arrays changed in place) and scratch, built by :func:`_new_ray`.
-
-    x, d : (3,) position (m) and unit tangent; fs : (FS_SIZE,) float state; ns : (NS_SIZE,) int state;
-    e_wind : (3,) unit horizontal launch azimuth (wind); g : (3,) the gradient the current cell's curve
-    is set up with; cs : (curves.CS_SIZE,) curve constants; xn, dn : (3,) segment end; the rest scratch;
-    path_base : first path row of this ray; rf : its field.RayField.
-    Per-ray extra state (e.g. paraxial derivatives) belongs here: add arrays, fill them in _new_ray.
-    """
-
-    x: np.ndarray
-    d: np.ndarray
-    fs: np.ndarray
-    ns: np.ndarray
-    e_wind: np.ndarray
-    g: np.ndarray
-    cs: np.ndarray
-    xn: np.ndarray
-    dn: np.ndarray
-    xs: np.ndarray
-    ts: np.ndarray
-    g_slide: np.ndarray
-    w_grad: np.ndarray
-    g_eff: np.ndarray
-    g_tmp: np.ndarray
-    x_mid: np.ndarray
-    path_base: int
-    rf: field.RayField
-
-
-# ---------------------------------------------------------------------------------------------
-# Geometry and media helpers
-# ---------------------------------------------------------------------------------------------
 @nb.njit(**NJIT_FLAGS)
-def _media_at(mesh, cell, x):
-    """The cell's traced quantity m at x (its linear model)."""
-    ref_point = mesh.ref_point
-    gradient = mesh.gradient
+def _media_at(media_ref, ref_point, gradient, cell, x):
     return (
-        mesh.media_ref[cell]
+        media_ref[cell]
         + gradient[cell, 0] * (x[0] - ref_point[cell, 0])
         + gradient[cell, 1] * (x[1] - ref_point[cell, 1])
         + gradient[cell, 2] * (x[2] - ref_point[cell, 2])
@@ -195,15 +136,12 @@ def _media_at(mesh, cell, x):
 
 
 @nb.njit(**NJIT_FLAGS)
-def _slowness_at(mesh, prm, ray, cell, x):
+def _slowness_at(curve, c_ref, media_ref, ref_point, gradient, cell, x, wind_code, wind_params, e, w_grad, g_eff):
     """1/c (s/m) of the medium the ray sees at x: the cell's model, plus the wind along e when on."""
-    m = _media_at(mesh, cell, x)
-    wind = ray.ns[NS_WIND]
-    if wind != WIND_NONE:
-        m = effective_quantity(
-            prm.curve, prm.c_ref, m, mesh.gradient[cell], wind, prm.wind_params, x, ray.e_wind, ray.w_grad, ray.g_tmp
-        )
-    return curves.slowness(prm.curve, m, prm.c_ref)
+    m = _media_at(media_ref, ref_point, gradient, cell, x)
+    if wind_code != WIND_NONE:
+        m = effective_quantity(curve, c_ref, m, gradient[cell], wind_code, wind_params, x, e, w_grad, g_eff)
+    return curves.slowness(curve, m, c_ref)
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -309,346 +247,52 @@ def _onto_face(plane, x, d, move_x):
         d[i] /= norm
 
 
-# ---------------------------------------------------------------------------------------------
-# Path recording and field deposit of one ray
-# ---------------------------------------------------------------------------------------------
 @nb.njit(**NJIT_FLAGS)
-def _emit(paths, ray, x, t, s):
-    """Record the path sample (x, t, s) if the ray's slice has room."""
-    ns = ray.ns
-    count = ns[COUNT_SAMPLES]
-    if count < paths.cap:
-        k = ray.path_base + count
-        paths.pts[k, 0] = x[0]
-        paths.pts[k, 1] = x[1]
-        paths.pts[k, 2] = x[2]
-        paths.t[k] = t
-        paths.s[k] = s
-        ns[COUNT_SAMPLES] = count + 1
+def _emit(path_pts, path_t, path_s, base, cap, count, x, t, s):
+    if count < cap:
+        k = base + count
+        path_pts[k, 0] = x[0]
+        path_pts[k, 1] = x[1]
+        path_pts[k, 2] = x[2]
+        path_t[k] = t
+        path_s[k] = s
+        return count + 1
+    return count
 
 
 @nb.njit(**NJIT_FLAGS)
-def _emit_segment(prm, paths, ray, param_end, t_end):
-    """Interior samples of the segment from the ray's x, d (set up in ray.cs) to param_end (time t_end),
-    evaluated on the curve, when it spans more than dt_sample."""
-    t0 = ray.fs[FS_TIME]
-    s0 = ray.fs[FS_LENGTH]
-    n_int = int((t_end - t0) / prm.dt_sample)
-    if n_int > 2 * paths.cap:
-        n_int = 2 * paths.cap
+def _emit_segment(
+    curve,
+    cs,
+    x0,
+    d0,
+    param_end,
+    t0,
+    s0,
+    t_end,
+    c_ref,
+    t_last,
+    dt_sample,
+    path_pts,
+    path_t,
+    path_s,
+    base,
+    cap,
+    count,
+    xs,
+    ts,
+):
+    """Interior samples of a segment spanning more than dt_sample (evaluated on the curve)."""
+    n_int = int((t_end - t0) / dt_sample)
+    if n_int > 2 * cap:
+        n_int = 2 * cap
     for j in range(1, n_int + 1):
-        prm_j = param_end * j / (n_int + 1)
-        ds = curves.evaluate(prm.curve, ray.cs, ray.x, ray.d, prm_j, ray.xs, ray.ts)
-        tt = t0 + curves.time_at(prm.curve, ray.cs, prm_j, prm.c_ref)
-        _emit(paths, ray, ray.xs, tt, s0 + ds)
-        ray.fs[FS_T_LAST] = tt
-
-
-@nb.njit(**NJIT_FLAGS)
-def _deposit(prm, fld, ray, m0, param_end, seg_t, seg_s):
-    """Field deposit of the segment from the ray's x, d to ray.xn (no-op without field)."""
-    if fld.mode != field.FIELD_OFF:
-        seg = field.Segment(param_end, ray.fs[FS_TIME], ray.fs[FS_LENGTH], seg_t, seg_s)
-        field.deposit_segment(
-            fld, ray.rf, ray.ns[COUNT_REFLECTIONS], prm.curve, prm.c_ref, ray.cs, ray.x, ray.d, ray.xn, m0, ray.g, seg
-        )
-
-
-@nb.njit(**NJIT_FLAGS)
-def _flush(mesh, prm, fld, ray, cell):
-    """Deposit the ray's pending field time at its current point (before a reflection, at the end)."""
-    slowness = _slowness_at(mesh, prm, ray, cell, ray.x)
-    fs = ray.fs
-    field.flush_pending(fld, ray.rf, ray.ns[COUNT_REFLECTIONS], ray.x, ray.d, fs[FS_TIME], fs[FS_LENGTH], slowness)
-
-
-# ---------------------------------------------------------------------------------------------
-# One ray's life: launch, then steps (cell medium, exit, stall / finish at time / advance, then cross,
-# reflect or exit) until it stops, then finish. The four places per-ray extra state is updated:
-# _advance and _finish_at_time (a segment inside a cell), _cross_face, _reflect, _finish.
-# ---------------------------------------------------------------------------------------------
-@nb.njit(**NJIT_FLAGS)
-def _new_ray(prm, paths, rays, i, acc):
-    """Ray i at its launch: unit tangent, start cell, wind azimuth, empty counters, its field state."""
-    x = rays.origins[i].copy()
-    d = rays.directions[i].copy()
-    norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-    for k in range(3):
-        d[k] /= norm
-    ns = np.zeros(NS_SIZE, dtype=np.int64)
-    ns[COUNT_STATUS] = STATUS_RUNNING
-    ns[NS_CELL] = rays.start_cells[i]
-    ns[NS_ENTRY] = -1
-    ns[NS_SLIDE_FACE] = -1
-    ns[NS_PREV_CELL] = -1
-    ns[NS_WIND] = WIND_NONE
-    # wind: the ray's horizontal launch azimuth e (the effective-sound-speed approximation keeps it for
-    # the whole path); a vertical launch has no azimuth and sees no wind (u . e = 0 for every horizontal u)
-    e_wind = np.zeros(3)
-    if prm.wind_code != WIND_NONE:
-        horizontal = math.sqrt(d[0] * d[0] + d[1] * d[1])
-        if horizontal > 0.0:
-            e_wind[0] = d[0] / horizontal
-            e_wind[1] = d[1] / horizontal
-            ns[NS_WIND] = prm.wind_code
-    rf = field.new_ray_field(rays.f_weights[i], rays.refl_cos[i], rays.refl_mat[i], i, acc)
-    e3 = np.empty
-    return Ray(
-        x, d, np.zeros(FS_SIZE), ns, e_wind, e3(3), np.zeros(curves.CS_SIZE), e3(3), e3(3), e3(3), e3(3), e3(3),
-        e3(3), e3(3), e3(3), e3(3), i * paths.cap, rf,
-    )  # fmt: skip
-
-
-@nb.njit(**NJIT_FLAGS)
-def _slide_gradient(mesh, ray, cell, face, wind_on):
-    """ray.g for a slide along ``face``: the mean gradient of its two sides without the normal part."""
-    g = ray.g
-    g_slide = ray.g_slide
-    plane = mesh.planes[cell, face]
-    nb_cell = mesh.neighbours[cell, face]
-    for i in range(3):
-        g_slide[i] = g[i]
-        if nb_cell >= 0 and not wind_on:
-            g_slide[i] = 0.5 * (g[i] + mesh.gradient[nb_cell, i])
-    gm = g_slide[0] * plane[0] + g_slide[1] * plane[1] + g_slide[2] * plane[2]
-    for i in range(3):
-        g[i] = g_slide[i] - gm * plane[i]
-
-
-@nb.njit(**NJIT_FLAGS)
-def _cell_medium(mesh, prm, ray, cell):
-    """The traced quantity m0 at x and (into ray.g) the gradient the cell's curve is set up with;
-    returns (m0, the face excluded from the exit search).
-
-    With wind, m0 and g become the effective medium's quantity (exact, at x) and its gradient at the
-    middle of the straight chord through the cell: the entry point's own gradient would make the per-cell
-    model first-order accurate (measured on a log-law wind, errors fell only 3x per 3x thinner layers, and
-    10x with the chord middle). The curve, its exit, time_at (which then integrates 1/c_eff: the travel
-    time in the moving medium), the nudge slowness and the field deposit all use them.
-    """
-    x = ray.x
-    g = ray.g
-    ns = ray.ns
-    m0 = _media_at(mesh, cell, x)
-    for i in range(3):  # copied, not viewed: a view per step costs two atomic reference-count updates
-        g[i] = mesh.gradient[cell, i]
-    wind_on = ns[NS_WIND] != WIND_NONE
-    if wind_on:
-        curve, c_ref, code, wp = prm.curve, prm.c_ref, prm.wind_code, prm.wind_params
-        m0 = effective_quantity(curve, c_ref, m0, g, code, wp, x, ray.e_wind, ray.w_grad, ray.g_eff)
-        if _chord_middle(mesh.planes[cell], mesh.neighbours[cell], x, ray.d, ray.x_mid):
-            m_mid = _media_at(mesh, cell, ray.x_mid)
-            effective_quantity(curve, c_ref, m_mid, g, code, wp, ray.x_mid, ray.e_wind, ray.w_grad, ray.g_eff)
-        for i in range(3):
-            g[i] = ray.g_eff[i]
-    exclude = ns[NS_ENTRY]
-    slide_face = ns[NS_SLIDE_FACE]
-    if slide_face >= 0:
-        _slide_gradient(mesh, ray, cell, slide_face, wind_on)
-        exclude = slide_face
-        ns[NS_SLIDE_FACE] = -1
-    return m0, exclude
-
-
-@nb.njit(**NJIT_FLAGS)
-def _resolve_stall(mesh, prm, ray, cell, m0):
-    """No consistent exit (rounding at an edge or vertex) or too many zero-length steps: slide along a
-    face the ray lies on and moves along, else nudge it NUDGE_REL x cell size along d and re-locate it."""
-    ns = ray.ns
-    ns[COUNT_NUDGES] += 1
-    ns[NS_NUDGE_RUN] += 1
-    ns[NS_ZERO_RUN] = 0
-    if ns[NS_NUDGE_RUN] > MAX_NUDGES_IN_A_ROW:
-        ns[COUNT_STATUS] = STATUS_LOST
-        return
-    tf = _tangent_face(mesh.planes[cell], mesh.neighbours[cell], ray.x, ray.d, mesh.size[cell])
-    if tf >= 0:
-        _onto_face(mesh.planes[cell, tf], ray.x, ray.d, True)
-        ns[NS_SLIDE_FACE] = tf
-        return
-    eta = NUDGE_REL * mesh.size[cell]
-    ray.fs[FS_TIME] += eta * curves.slowness(prm.curve, m0, prm.c_ref)
-    ray.fs[FS_LENGTH] += eta
-    cell, status = _nudge(mesh.planes, mesh.neighbours, cell, ray.x, ray.d, eta)
-    ns[NS_CELL] = cell
-    ns[COUNT_STATUS] = status
-    ns[NS_ENTRY] = -1
-
-
-@nb.njit(**NJIT_FLAGS)
-def _finish_at_time(prm, fld, paths, ray, m0, param):
-    """The segment reaches max_time before its exit at ``param``: end the ray on the curve at max_time."""
-    fs = ray.fs
-    t = fs[FS_TIME]
-    param_end = curves.param_at_time(prm.curve, ray.cs, prm.max_time - t, param, prm.c_ref)
-    ds = curves.evaluate(prm.curve, ray.cs, ray.x, ray.d, param_end, ray.xn, ray.dn)
-    _deposit(prm, fld, ray, m0, param_end, prm.max_time - t, ds)
-    if prm.record and prm.max_time - t > prm.dt_sample:
-        _emit_segment(prm, paths, ray, param_end, prm.max_time)
-    for i in range(3):
-        ray.x[i] = ray.xn[i]
-        ray.d[i] = ray.dn[i]
-    fs[FS_TIME] = prm.max_time
-    fs[FS_LENGTH] += ds
-    ray.ns[COUNT_STATUS] = STATUS_TIME_LIMIT
-
-
-@nb.njit(**NJIT_FLAGS)
-def _advance(prm, fld, paths, ray, m0, param, dt, cell_size):
-    """Move the ray along its curve to the exit at ``param`` (travel time dt): field deposit, path samples."""
-    ns = ray.ns
-    fs = ray.fs
-    x = ray.x
-    ds = curves.evaluate(prm.curve, ray.cs, x, ray.d, param, ray.xn, ray.dn)
-    if ds > TINY_STEP_REL * cell_size:
-        ns[NS_ZERO_RUN] = 0
-    elif param != 0.0:
-        ns[NS_ZERO_RUN] += 1
-    _deposit(prm, fld, ray, m0, param, dt, ds)
-    if prm.record and dt > prm.dt_sample:
-        _emit_segment(prm, paths, ray, param, fs[FS_TIME] + dt)
-    for i in range(3):
-        x[i] = ray.xn[i]
-        ray.d[i] = ray.dn[i]
-    fs[FS_TIME] += dt
-    fs[FS_LENGTH] += ds
-    if not (math.isfinite(x[0]) and math.isfinite(x[1]) and math.isfinite(x[2])):
-        ns[COUNT_STATUS] = STATUS_LOST
-        return
-    if prm.record and fs[FS_TIME] - fs[FS_T_LAST] >= prm.dt_sample:
-        _emit(paths, ray, x, fs[FS_TIME], fs[FS_LENGTH])
-        fs[FS_T_LAST] = fs[FS_TIME]
-    if param > 0.0:
-        ns[NS_NUDGE_RUN] = 0
-
-
-@nb.njit(**NJIT_FLAGS)
-def _cross_face(mesh, ray, cell, face, nxt):
-    """Step into neighbour ``nxt`` across ``face``, or slide along the face after PINGPONG_SLIDE
-    crossings back and forth across it while moving along it (a zero-width channel of the medium)."""
-    ns = ray.ns
-    d = ray.d
-    plane = mesh.planes[cell, face]
-    dm = d[0] * plane[0] + d[1] * plane[1] + d[2] * plane[2]
-    if nxt == ns[NS_PREV_CELL] and abs(dm) <= SLIDE_COS:
-        ns[NS_PP_RUN] += 1
-    else:
-        ns[NS_PP_RUN] = 0
-    if ns[NS_PP_RUN] >= PINGPONG_SLIDE:
-        _onto_face(plane, ray.x, d, False)
-        ns[NS_SLIDE_FACE] = face
-        ns[NS_PP_RUN] = 0
-        ns[COUNT_NUDGES] += 1
-        return
-    ns[NS_PREV_CELL] = cell
-    ns[NS_ENTRY] = mesh.neighbour_face[cell, face]
-    ns[NS_CELL] = nxt
-    ns[COUNT_CROSSINGS] += 1
-
-
-@nb.njit(**NJIT_FLAGS)
-def _reflect(mesh, prm, fld, paths, ray, cell, face, param):
-    """Specular reflection off reflecting ``face`` (T' = T - 2 (T.m) m), or the reflection limit, or a
-    slide along the face when the ray sits on it tangentially (|d . m| <= GRAZE_COS at a zero step)."""
-    ns = ray.ns
-    d = ray.d
-    fs = ray.fs
-    plane = mesh.planes[cell, face]
-    dot = d[0] * plane[0] + d[1] * plane[1] + d[2] * plane[2]
-    if param == 0.0 and abs(dot) <= GRAZE_COS:
-        # on the boundary, moving along it and curving into it: the limit of vanishing bounces is
-        # creeping along the surface; slide (no reflection: the direction would not change)
-        ns[NS_SLIDE_FACE] = face
-        ns[NS_ENTRY] = -1
-        return
-    reflections = ns[COUNT_REFLECTIONS]
-    if reflections >= prm.max_reflections:
-        ns[COUNT_STATUS] = STATUS_REFLECTION_LIMIT
-        return
-    material = mesh.face_material[cell, face]
-    if fld.mode != field.FIELD_OFF:  # time gathered before the reflection belongs to the incoming ray
-        _flush(mesh, prm, fld, ray, cell)
-        if material > 0:
-            ray.rf.fst[2] = -1.0  # a soft reflection: re-evaluate the ground factors
-    if reflections < ray.rf.refl_cos.shape[0]:
-        ray.rf.refl_cos[reflections] = abs(dot)
-        ray.rf.refl_mat[reflections] = material
-    for i in range(3):
-        d[i] -= 2.0 * dot * plane[i]
-    norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-    for i in range(3):
-        d[i] /= norm
-    ns[COUNT_REFLECTIONS] = reflections + 1
-    ns[NS_ENTRY] = face
-    if prm.record and fs[FS_TIME] > fs[FS_T_LAST]:
-        _emit(paths, ray, ray.x, fs[FS_TIME], fs[FS_LENGTH])
-        fs[FS_T_LAST] = fs[FS_TIME]
-
-
-@nb.njit(**NJIT_FLAGS)
-def _step(mesh, prm, fld, paths, ray):
-    """One segment: the cell's curve from x, its first exit, then stall, time limit or advance + exit."""
-    ns = ray.ns
-    if ns[COUNT_STEPS] >= prm.max_steps:
-        ns[COUNT_STATUS] = STATUS_STEP_LIMIT
-        return
-    ns[COUNT_STEPS] += 1
-    cell = ns[NS_CELL]
-    m0, exclude = _cell_medium(mesh, prm, ray, cell)
-    if not curves.setup(prm.curve, m0, ray.g, ray.d, ray.cs):
-        ns[COUNT_STATUS] = STATUS_LOST
-        return
-    cell_size = mesh.size[cell]
-    planes = mesh.planes[cell]
-    face, param = curves.find_exit(
-        prm.curve, ray.cs, ray.x, ray.d, planes, mesh.neighbours[cell], exclude, ON_FACE_REL * cell_size, cell_size
-    )
-    if face < 0:
-        param = curves.interior_step(prm.curve, ray.cs)  # circular: a quarter turn inside the cell
-    if param == 0.0:
-        ns[NS_ZERO_RUN] += 1
-    if (face < 0 and not math.isfinite(param)) or ns[NS_ZERO_RUN] > MAX_ZERO_STEPS:
-        _resolve_stall(mesh, prm, ray, cell, m0)
-        return
-    dt = curves.time_at(prm.curve, ray.cs, param, prm.c_ref)
-    if not (dt >= 0.0):
-        ns[COUNT_STATUS] = STATUS_LOST
-        return
-    if ray.fs[FS_TIME] + dt >= prm.max_time:
-        _finish_at_time(prm, fld, paths, ray, m0, param)
-        return
-    _advance(prm, fld, paths, ray, m0, param, dt, cell_size)
-    if ns[COUNT_STATUS] != STATUS_RUNNING:
-        return
-    if face < 0:
-        ns[NS_ENTRY] = -1  # within-cell step (circular quarter turn): same cell, no entry face
-        return
-    nxt = mesh.neighbours[cell, face]
-    if nxt >= 0:
-        _cross_face(mesh, ray, cell, face, nxt)
-    elif nxt == BOUNDARY_REFLECT:
-        _reflect(mesh, prm, fld, paths, ray, cell, face, param)
-    else:
-        ns[COUNT_STATUS] = STATUS_EXITED
-
-
-@nb.njit(**NJIT_FLAGS)
-def _finish(mesh, prm, fld, paths, ray, out_state, out_counts):
-    """The ray has stopped: deposit its pending field time, record the end point, write its outputs."""
-    ns = ray.ns
-    fs = ray.fs
-    cell = ns[NS_CELL]
-    if fld.mode != field.FIELD_OFF and cell >= 0:
-        _flush(mesh, prm, fld, ray, cell)
-    if prm.record and (ns[COUNT_SAMPLES] == 0 or fs[FS_TIME] > fs[FS_T_LAST]):
-        _emit(paths, ray, ray.x, fs[FS_TIME], fs[FS_LENGTH])
-    for i in range(3):
-        out_state[STATE_X + i] = ray.x[i]
-        out_state[STATE_D + i] = ray.d[i]
-    out_state[STATE_TIME] = fs[FS_TIME]
-    out_state[STATE_LENGTH] = fs[FS_LENGTH]
-    for k in range(COUNT_SIZE):
-        out_counts[k] = ns[k]
+        prm = param_end * j / (n_int + 1)
+        ds = curves.evaluate(curve, cs, x0, d0, prm, xs, ts)
+        tt = t0 + curves.time_at(curve, cs, prm, c_ref)
+        count = _emit(path_pts, path_t, path_s, base, cap, count, xs, tt, s0 + ds)
+        t_last = tt
+    return count, t_last
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -656,16 +300,367 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc):
     """Trace ray i (rays.origins[i], rays.directions[i] from rays.start_cells[i]) to its end state.
 
     mesh : CellMesh; prm : RayParams; fld : field.FieldAcc (mode FIELD_OFF: no accumulation), written in
-    accumulator slot ``acc``; paths : PathBuffers (ray i's slice); rays : Rays (row i read and written).
+    accumulator slot ``acc``; paths : PathBuffers (ray i's slice); rays : Rays (row i read and written:
+    out_state, out_counts, refl_cos, refl_mat). With wind, each cell's curve is set up from the effective
+    medium c + u.e: its value at the entry point x, its gradient at the middle of the straight chord from
+    x along d through the cell (exact analytic derivatives there); e = the unit horizontal part of the
+    launch direction, fixed for the whole path.
     """
-    ray = _new_ray(prm, paths, rays, i, acc)
-    if prm.record:
-        _emit(paths, ray, ray.x, 0.0, 0.0)
-    if ray.ns[NS_CELL] < 0:
-        ray.ns[COUNT_STATUS] = STATUS_LOST
-    while ray.ns[COUNT_STATUS] == STATUS_RUNNING:
-        _step(mesh, prm, fld, paths, ray)
-    _finish(mesh, prm, fld, paths, ray, rays.out_state[i], rays.out_counts[i])
+    planes = mesh.planes
+    neighbours = mesh.neighbours
+    neighbour_face = mesh.neighbour_face
+    media_ref = mesh.media_ref
+    ref_point = mesh.ref_point
+    gradient = mesh.gradient
+    size = mesh.size
+    face_material = mesh.face_material
+    curve = prm.curve
+    c_ref = prm.c_ref
+    wind_code = prm.wind_code
+    wind_params = prm.wind_params
+    max_time = prm.max_time
+    max_reflections = prm.max_reflections
+    max_steps = prm.max_steps
+    record = prm.record
+    dt_sample = prm.dt_sample
+    path_pts = paths.pts
+    path_t = paths.t
+    path_s = paths.s
+    path_cap = paths.cap
+    path_base = i * path_cap
+    x_start = rays.origins[i]
+    d_start = rays.directions[i]
+    cell_start = rays.start_cells[i]
+    refl_cos = rays.refl_cos[i]
+    refl_mat = rays.refl_mat[i]
+    out_state = rays.out_state[i]
+    out_counts = rays.out_counts[i]
+    rf = field.new_ray_field(rays.f_weights[i], refl_cos, refl_mat, i, acc)
+    f_on = fld.mode != field.FIELD_OFF
+    fst = rf.fst
+    x = x_start.copy()
+    d = d_start.copy()
+    norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    for i in range(3):
+        d[i] /= norm
+    # wind: the ray's horizontal launch azimuth e (the effective-sound-speed approximation keeps it for
+    # the whole path); a vertical launch has no azimuth and sees no wind (u . e = 0 for every horizontal u)
+    e_wind = np.zeros(3)
+    w_grad = np.empty(3)
+    g_eff = np.empty(3)
+    g_tmp = np.empty(3)
+    x_mid = np.empty(3)
+    ray_wind = WIND_NONE
+    if wind_code != WIND_NONE:
+        horizontal = math.sqrt(d[0] * d[0] + d[1] * d[1])
+        if horizontal > 0.0:
+            e_wind[0] = d[0] / horizontal
+            e_wind[1] = d[1] / horizontal
+            ray_wind = wind_code
+    wind_on = ray_wind != WIND_NONE
+    xn = np.empty(3)
+    dn = np.empty(3)
+    xs = np.empty(3)
+    ts = np.empty(3)
+    cs = np.zeros(curves.CS_SIZE)
+    t = 0.0
+    s = 0.0
+    cell = cell_start
+    entry = -1
+    reflections = 0
+    crossings = 0
+    nudges = 0
+    nudge_run = 0
+    zero_run = 0
+    slide_face = -1
+    g_slide = np.empty(3)
+    g = np.empty(3)  # the gradient the current cell's curve is set up with
+    prev_cell = -1
+    pp_run = 0
+    steps = 0
+    status = STATUS_RUNNING
+    count = 0
+    t_last = 0.0
+    if record:
+        count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
+    if cell < 0:
+        status = STATUS_LOST
+    while status == STATUS_RUNNING:
+        if steps >= max_steps:
+            status = STATUS_STEP_LIMIT
+            break
+        steps += 1
+        m0 = _media_at(media_ref, ref_point, gradient, cell, x)
+        for i in range(3):  # copied, not viewed: a view per step costs two atomic reference-count updates
+            g[i] = gradient[cell, i]
+        if wind_on:
+            # m0, g become the effective medium's traced quantity (exact, at x) and its gradient (at the
+            # middle of the straight chord through the cell: the entry point's own gradient would make the
+            # per-cell model first-order accurate; measured on a log-law wind, errors fell only 3x per 3x
+            # thinner layers, and 10x with the chord middle). The curve, its exit, time_at (which then
+            # integrates 1/c_eff: the travel time in the moving medium), the nudge slowness and the field
+            # deposit all use them. Without wind nothing here changes.
+            m0 = effective_quantity(curve, c_ref, m0, g, wind_code, wind_params, x, e_wind, w_grad, g_eff)
+            if _chord_middle(planes[cell], neighbours[cell], x, d, x_mid):
+                effective_quantity(
+                    curve,
+                    c_ref,
+                    _media_at(media_ref, ref_point, gradient, cell, x_mid),
+                    g,
+                    wind_code,
+                    wind_params,
+                    x_mid,
+                    e_wind,
+                    w_grad,
+                    g_eff,
+                )
+            for i in range(3):
+                g[i] = g_eff[i]
+        exclude = entry
+        if slide_face >= 0:
+            # slide along the face: the mean gradient of the two sides without its normal part
+            nb_cell = neighbours[cell, slide_face]
+            for i in range(3):
+                g_slide[i] = g[i]
+                if nb_cell >= 0 and not wind_on:
+                    g_slide[i] = 0.5 * (g[i] + gradient[nb_cell, i])
+            gm = (
+                g_slide[0] * planes[cell, slide_face, 0]
+                + g_slide[1] * planes[cell, slide_face, 1]
+                + g_slide[2] * planes[cell, slide_face, 2]
+            )
+            for i in range(3):
+                g[i] = g_slide[i] - gm * planes[cell, slide_face, i]
+            exclude = slide_face
+            slide_face = -1
+        if not curves.setup(curve, m0, g, d, cs):
+            status = STATUS_LOST
+            break
+        cell_size = size[cell]
+        face, param = curves.find_exit(
+            curve, cs, x, d, planes[cell], neighbours[cell], exclude, ON_FACE_REL * cell_size, cell_size
+        )
+        if face < 0:
+            param = curves.interior_step(curve, cs)  # circular: a quarter turn inside the cell
+        if param == 0.0:
+            zero_run += 1
+        if (face < 0 and not math.isfinite(param)) or zero_run > MAX_ZERO_STEPS:
+            # rounding at an edge or vertex left no consistent exit: nudge and re-locate
+            nudges += 1
+            nudge_run += 1
+            zero_run = 0
+            if nudge_run > MAX_NUDGES_IN_A_ROW:
+                status = STATUS_LOST
+                break
+            tf = _tangent_face(planes[cell], neighbours[cell], x, d, size[cell])
+            if tf >= 0:
+                _onto_face(planes[cell, tf], x, d, True)
+                slide_face = tf
+                continue
+            eta = NUDGE_REL * cell_size
+            t += eta * curves.slowness(curve, m0, c_ref)
+            s += eta
+            cell, status = _nudge(planes, neighbours, cell, x, d, eta)
+            entry = -1
+            continue
+        dt = curves.time_at(curve, cs, param, c_ref)
+        if not (dt >= 0.0):
+            status = STATUS_LOST
+            break
+        if t + dt >= max_time:
+            param_end = curves.param_at_time(curve, cs, max_time - t, param, c_ref)
+            ds = curves.evaluate(curve, cs, x, d, param_end, xn, dn)
+            if f_on:
+                field.deposit_segment(
+                    fld,
+                    rf,
+                    reflections,
+                    curve,
+                    c_ref,
+                    cs,
+                    x,
+                    d,
+                    xn,
+                    m0,
+                    g,
+                    field.Segment(param_end, t, s, max_time - t, ds),
+                )
+            if record and max_time - t > dt_sample:
+                count, t_last = _emit_segment(
+                    curve,
+                    cs,
+                    x,
+                    d,
+                    param_end,
+                    t,
+                    s,
+                    max_time,
+                    c_ref,
+                    t_last,
+                    dt_sample,
+                    path_pts,
+                    path_t,
+                    path_s,
+                    path_base,
+                    path_cap,
+                    count,
+                    xs,
+                    ts,
+                )
+            for i in range(3):
+                x[i] = xn[i]
+                d[i] = dn[i]
+            t = max_time
+            s += ds
+            status = STATUS_TIME_LIMIT  # HOOK (a): the last segment, to max_time
+            break
+        ds = curves.evaluate(curve, cs, x, d, param, xn, dn)
+        if ds > TINY_STEP_REL * cell_size:
+            zero_run = 0
+        elif param != 0.0:
+            zero_run += 1
+        if f_on:
+            field.deposit_segment(
+                fld, rf, reflections, curve, c_ref, cs, x, d, xn, m0, g, field.Segment(param, t, s, dt, ds)
+            )
+        if record:
+            if dt > dt_sample:
+                count, t_last = _emit_segment(
+                    curve,
+                    cs,
+                    x,
+                    d,
+                    param,
+                    t,
+                    s,
+                    t + dt,
+                    c_ref,
+                    t_last,
+                    dt_sample,
+                    path_pts,
+                    path_t,
+                    path_s,
+                    path_base,
+                    path_cap,
+                    count,
+                    xs,
+                    ts,
+                )
+        for i in range(3):
+            x[i] = xn[i]
+            d[i] = dn[i]
+        t += dt
+        s += ds
+        if not (math.isfinite(x[0]) and math.isfinite(x[1]) and math.isfinite(x[2])):
+            status = STATUS_LOST
+            break
+        if record and t - t_last >= dt_sample:
+            count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
+            t_last = t
+        if param > 0.0:
+            nudge_run = 0
+        # HOOK (a): a segment inside the cell ended here (x, d, t, s updated; cell not yet changed)
+        if face < 0:
+            entry = -1  # within-cell step (circular quarter turn): same cell, no entry face
+            continue
+        nxt = neighbours[cell, face]
+        if nxt >= 0:
+            dm = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
+            if nxt == prev_cell and abs(dm) <= SLIDE_COS:
+                pp_run += 1
+            else:
+                pp_run = 0
+            if pp_run >= PINGPONG_SLIDE:
+                # zig-zagging across this face: slide along it in the current cell
+                _onto_face(planes[cell, face], x, d, False)
+                slide_face = face
+                pp_run = 0
+                nudges += 1
+                continue
+            prev_cell = cell
+            entry = neighbour_face[cell, face]
+            cell = nxt
+            crossings += 1  # HOOK (b): crossed into the neighbour cell
+        elif nxt == BOUNDARY_REFLECT:
+            dot = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
+            if param == 0.0 and abs(dot) <= GRAZE_COS:
+                # on the boundary, moving along it and curving into it: the limit of vanishing bounces
+                # is creeping along the surface; slide (no reflection: the direction would not change)
+                slide_face = face
+                entry = -1
+                continue
+            if reflections >= max_reflections:
+                status = STATUS_REFLECTION_LIMIT
+                break
+            if f_on:  # time gathered before the reflection belongs to the incoming ray
+                field.flush_pending(
+                    fld,
+                    rf,
+                    reflections,
+                    x,
+                    d,
+                    t,
+                    s,
+                    _slowness_at(
+                        curve,
+                        c_ref,
+                        media_ref,
+                        ref_point,
+                        gradient,
+                        cell,
+                        x,
+                        ray_wind,
+                        wind_params,
+                        e_wind,
+                        w_grad,
+                        g_tmp,
+                    ),
+                )
+                if face_material[cell, face] > 0:
+                    fst[2] = -1.0  # a soft reflection: re-evaluate the ground factors
+            if reflections < refl_cos.shape[0]:
+                refl_cos[reflections] = abs(dot)
+                refl_mat[reflections] = face_material[cell, face]
+            for i in range(3):
+                d[i] -= 2.0 * dot * planes[cell, face, i]
+            norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+            for i in range(3):
+                d[i] /= norm
+            reflections += 1
+            entry = face  # HOOK (c): specular reflection done (d reflected)
+            if record and t > t_last:
+                count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
+                t_last = t
+        else:
+            status = STATUS_EXITED
+            break
+    # HOOK (d): the ray has stopped (status set)
+    if f_on and cell >= 0:
+        field.flush_pending(
+            fld,
+            rf,
+            reflections,
+            x,
+            d,
+            t,
+            s,
+            _slowness_at(
+                curve, c_ref, media_ref, ref_point, gradient, cell, x, ray_wind, wind_params, e_wind, w_grad, g_tmp
+            ),
+        )
+    if record and (count == 0 or t > t_last):
+        count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
+    for k in range(3):
+        out_state[STATE_X + k] = x[k]
+        out_state[STATE_D + k] = d[k]
+    out_state[STATE_TIME] = t
+    out_state[STATE_LENGTH] = s
+    out_counts[COUNT_STATUS] = status
+    out_counts[COUNT_REFLECTIONS] = reflections
+    out_counts[COUNT_CROSSINGS] = crossings
+    out_counts[COUNT_NUDGES] = nudges
+    out_counts[COUNT_STEPS] = steps
+    out_counts[COUNT_SAMPLES] = count
 
 
 @nb.njit(**PARALLEL_FLAGS)
