@@ -17,6 +17,7 @@ import numba
 import numpy as np
 
 import bentray
+from bentray.engine import beam_field
 from bentray.engine import field as field_stage
 from bentray.engine.constants import CURVE_QUANTITY
 from bentray.engine.errors import JobInputError
@@ -388,7 +389,9 @@ def run_job(
     )
 
     runner = executor if executor is not None else default_executor()
-    ranges = plan.batches(solver.batch_rays)
+    # a beam field is normalised per source, so each source's fan is one batch
+    beams_on = isinstance(template, beam_field.BeamBuffers)
+    ranges = plan.batches(plan.n_rays if beams_on else solver.batch_rays)
     done = [0]
 
     def on_batch(part: BatchResult) -> None:
@@ -417,9 +420,12 @@ def run_job(
     if job.field is not None and buffers is not None:
         t0 = time.perf_counter()
         grid_points = buffers.grid.points()
-        field_arrays = field_stage.finalize(
-            job.field, buffers, profile.sound_speed(grid_points), result, powers, materials
-        )
+        if isinstance(buffers, beam_field.BeamBuffers):
+            field_arrays = beam_field.finalize(job.field, buffers)
+        else:
+            field_arrays = field_stage.finalize(
+                job.field, buffers, profile.sound_speed(grid_points), result, powers, materials
+            )
         field_arrays.preview = {
             "source_xyz": list(job.sources[0].position),
             "receiver_z": float(lo[2] + job.field.receiver_height_m),
@@ -539,6 +545,23 @@ def _prepare_field(job: Job, profile, mesh: CellMesh, src_idx: np.ndarray, mater
         powers = np.array(
             [[field_stage.W_REF * 10.0 ** (src.power_db[b] / 10.0) for b in spec.labels] for src in job.sources]
         )
+    if spec.method == "beams":
+        el_axis = np.asarray(job.rays.elevation_deg.values(), float)
+        az_axis = np.asarray(job.rays.azimuth_deg.values(), float)
+        beam_template = beam_field.prepare(
+            spec,
+            elevation_deg=el_axis,
+            azimuth_deg=az_axis,
+            n_rays=len(src_idx),
+            source_index=src_idx,
+            source_powers_w=powers,
+            materials=materials,
+            max_reflections=job.rays.max_reflections,
+            c_ref=float(profile.c_ref),
+            ground_sound_speed=float(profile.sound_speed(ground_point)[0]),
+            n_face_materials=int(mesh.face_material.max()) + 1 if mesh.face_material.size else 1,
+        )
+        return mesh, beam_template, powers
     buffers = field_stage.prepare(
         spec,
         ray_weights=weights,

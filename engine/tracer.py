@@ -5,6 +5,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from bentray.engine.beam_field import BeamBuffers, no_beam_args
 from bentray.engine.constants import CURVE_CODES
 from bentray.engine.field_buffers import REFLECTION_RECORD_CAP, FieldBuffers, no_field_tuple
 from bentray.engine.kernels.traverse import trace_rays
@@ -48,7 +49,7 @@ def trace(
     max_reflections: int,
     max_steps: int = 10_000_000,
     path_samples: int = 0,
-    field: FieldBuffers | None = None,
+    field: FieldBuffers | BeamBuffers | None = None,
     wind: tuple[int, np.ndarray] | None = None,
 ) -> TraceResult:
     """Trace rays through ``mesh`` with the given curve kind.
@@ -75,7 +76,17 @@ def trace(
     dt_sample = max_time_s / max(path_samples, 1)
     out_state = np.zeros((n, 8))
     out_counts = np.zeros((n, 6), dtype=np.int64)
-    if field is not None:
+    beam = no_beam_args()
+    if isinstance(field, BeamBuffers):
+        if field.weights.shape[0] != n:
+            raise ValueError("field weights must have one row per ray")
+        if curve != "parabolic":
+            raise ValueError("beam fields need the parabolic curve (paraxial rays are built for it)")
+        fld, f_weights = no_field_tuple(n)
+        n_slots = field.n_slots
+        beam = field.kernel_args()
+        refl_cap = REFLECTION_RECORD_CAP
+    elif field is not None:
         if field.weights.shape[0] != n:
             raise ValueError("field weights must have one row per ray")
         fld, f_weights, n_slots = field.kernel_tuple(), field.weights, field.n_slots
@@ -116,6 +127,7 @@ def trace(
         n_slots,
         refl_cos,
         refl_mat,
+        *beam,
         out_state,
         out_counts,
     )

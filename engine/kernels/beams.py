@@ -65,6 +65,9 @@ N_KMAH = 3
 # Divide each group's sum by max(sum of hat weights, W_FLOOR): a point with at least half of a full
 # partition of unity is normalised; below that the field fades linearly (fan edges, shadow boundaries).
 W_FLOOR = 0.5
+# The caustic floor of a beam's width is at most this fraction of the width of an unfocused tube at the
+# same arc length (arc * Dgamma): it acts where a tube has collapsed, not near the source.
+FLOOR_ARC_REL = 0.25
 
 
 class BeamGrid(NamedTuple):
@@ -118,12 +121,12 @@ def chord_group(n_refl_groups, reflections, kmah):
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
-def _transverse_basis(x1, x2, t, dg1, dg2, w_min, out):
+def _transverse_basis(x1, x2, t, dg1, dg2, w_min, arc, out):
     """Orthonormal transverse basis e1, e2 and the triangular map of dgamma into it.
 
     x1, x2 : X_1, X_2 (3,); t : unit tangent. Writes out[0:3] = e1, out[3:6] = e2 and returns
     (a11, a12, a22, j_raw): ``X_perp dgamma = (a11 dg1 + a12 dg2) e1 + a22 dg2 e2`` with a11 and a22
-    floored so that a11 * Dgamma_1 >= w_min and a22 * Dgamma_2 >= w_min; j_raw = |X1p x X2p| unfloored.
+    floored so that a_kk * Dgamma_k >= min(w_min, FLOOR_ARC_REL * arc * Dgamma_k); j_raw = |X1p x X2p|.
     """
     a1 = x1[0] * t[0] + x1[1] * t[1] + x1[2] * t[2]
     u0 = x1[0] - a1 * t[0]
@@ -163,10 +166,18 @@ def _transverse_basis(x1, x2, t, dg1, dg2, w_min, out):
     j_raw = abs(a11 * a22)
     sgn = 1.0 if a22 >= 0.0 else -1.0
     a22 = abs(a22)
-    if a11 * dg1 < w_min:
-        a11 = w_min / dg1
-    if a22 * dg2 < w_min:
-        a22 = w_min / dg2
+    # floors: w_min, but never more than FLOOR_ARC_REL of the width an unfocused tube would have at this
+    # arc length (about arc * dgamma): near the source the tube is legitimately thin, at a caustic it is not
+    floor1 = min(w_min, FLOOR_ARC_REL * arc * dg1)
+    floor2 = min(w_min, FLOOR_ARC_REL * arc * dg2)
+    if a11 * dg1 < floor1:
+        a11 = floor1 / dg1
+    if a22 * dg2 < floor2:
+        a22 = floor2 / dg2
+    if a11 <= 0.0:
+        a11 = 1e-300
+    if a22 <= 0.0:
+        a22 = 1e-300
     out[0] = e0
     out[1] = e1_
     out[2] = e2_
@@ -292,7 +303,8 @@ def deposit_chord(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos
                     tf[a] /= tn
                     x1[a] = v_ * sa[S_X1 + a] + u * sb[S_X1 + a]
                     x2[a] = v_ * sa[S_X2 + a] + u * sb[S_X2 + a]
-                a11, a12, a22, _ = _transverse_basis(x1, x2, tf, dg1, dg2, w_min, basis)
+                arc = v_ * sa[S_ARC] + u * sb[S_ARC]
+                a11, a12, a22, _ = _transverse_basis(x1, x2, tf, dg1, dg2, w_min, arc, basis)
                 qa = q0 * tf[0] + q1 * tf[1] + q2 * tf[2]
                 qp0 = q0 - qa * tf[0]
                 qp1 = q1 - qa * tf[1]
@@ -423,7 +435,9 @@ def ray_sample(grid, acc, slot, tabs, ray, x, tangent, time, arc, slow, par, n_r
     det = signed_tube(cur)
     sign = 1 if det > 0.0 else (-1 if det < 0.0 else 0)
     if sign != 0:
-        if ray.ist[2] != 0 and sign != ray.ist[2]:
+        # a reflection mirrors the tube (det changes sign without a caustic): a new chord only resets the
+        # reference sign
+        if ray.ist[2] != 0 and sign != ray.ist[2] and not start_new:
             ray.ist[1] += 1
         ray.ist[2] = sign
     cur[S_JSIGN] = sign
