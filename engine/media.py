@@ -136,7 +136,7 @@ def build_media(
     """Build the representation the job needs for the traced quantity of ``curve``.
 
     wind : (code, params) of engine.wind, or None. The mesh carries the profile alone (the kernel adds
-    u . e per ray); its sizing uses the downwind effective medium c + |u| (physics.md section 6).
+    u . e per ray); its sizing uses the downwind effective medium c + |u| (docs/physics.md §6).
     """
     lo = np.asarray(domain_min, float)
     hi = np.asarray(domain_max, float)
