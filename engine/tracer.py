@@ -51,6 +51,7 @@ def trace(
     path_samples: int = 0,
     field: FieldBuffers | BeamBuffers | None = None,
     wind: tuple[int, np.ndarray] | None = None,
+    paraxial: bool = False,
 ) -> TraceResult:
     """Trace rays through ``mesh`` with the given curve kind.
 
@@ -62,6 +63,8 @@ def trace(
     wind : (code, params) of engine.wind.wind_spec, or None (no wind: code 0 and an empty array go to the
         kernel). With wind each ray traces the effective medium c + u(x) . e, e its unit horizontal launch
         azimuth (physics.md section 7); ``mesh`` carries c alone (no per-cell wind arrays).
+    paraxial : also return each ray's final paraxial state (TraceResult.paraxial, (n, 13): X_el, X_az,
+        P_el, P_az, |p|; parabolic curve only; docs/physics.md §10).
     Returns a TraceResult with launch angles left at NaN (the caller fills them in).
     """
     origins, directions, start_cells = ray_inputs(curve, origins, directions, start_cells, max_time_s)
@@ -77,6 +80,9 @@ def trace(
     out_state = np.zeros((n, 8))
     out_counts = np.zeros((n, 6), dtype=np.int64)
     beam = no_beam_args()
+    if paraxial and curve != "parabolic":
+        raise ValueError("paraxial rays are built for the parabolic curve")
+    out_par = np.full((n if paraxial else 0, 13), np.nan)
     if isinstance(field, BeamBuffers):
         if field.weights.shape[0] != n:
             raise ValueError("field weights must have one row per ray")
@@ -128,6 +134,7 @@ def trace(
         refl_cos,
         refl_mat,
         *beam,
+        out_par,
         out_state,
         out_counts,
     )
@@ -155,4 +162,5 @@ def trace(
         steps=out_counts[:, 4].copy(),
         reflection_cos=refl_cos if field is not None else None,
         reflection_material=refl_mat if field is not None else None,
+        paraxial=out_par if paraxial else None,
     )

@@ -1,4 +1,4 @@
-"""Ground impedance and reflection coefficients for a locally reacting ground (physics.md section 8).
+"""Ground impedance and reflection coefficients for a locally reacting ground (docs/physics.md §8).
 
 Time convention ``exp(-i w t)`` throughout: a wave travelling a distance R carries ``exp(+i k R)``, and a
 passive porous ground has ``Re Z > 0`` and ``Im Z > 0`` (a stiffness-like surface impedance).

@@ -408,6 +408,8 @@ def trace_one(
     refl_cos,
     refl_mat,
     beam,
+    want_par,
+    out_par,
     out_state,
     out_counts,
 ):
@@ -456,7 +458,8 @@ def trace_one(
     s = 0.0
     cell = cell_start
     bgrid, bacc, btabs = beam
-    beam_on = bgrid.mode != beams.BEAM_OFF and cell_start >= 0
+    deposit_on = bgrid.mode != beams.BEAM_OFF
+    beam_on = (deposit_on or want_par) and cell_start >= 0
     par = np.zeros(paraxial.PAR_SIZE)
     par_tmp = np.zeros(paraxial.PAR_SIZE)
     p_end = np.zeros(3)
@@ -471,8 +474,9 @@ def trace_one(
         if m_start > 0.0:
             p_norm = math.sqrt(m_start)
             paraxial.launch(par, d, p_norm)
-            beams.ray_sample(bgrid, bacc, acc, btabs, bray, x, d, 0.0, 0.0, p_norm / c_ref, par, 0, refl_cos,
-                             refl_mat, launch_cos, True)
+            if deposit_on:
+                beams.ray_sample(bgrid, bacc, acc, btabs, bray, x, d, 0.0, 0.0, p_norm / c_ref, par, 0, refl_cos,
+                                 refl_mat, launch_cos, True)
         else:
             beam_on = False
     entry = -1
@@ -584,12 +588,14 @@ def trace_one(
             param_end = curves.param_at_time(curve, cs, max_time - t, param, c_ref)
             ds = curves.evaluate(curve, cs, x, d, param_end, xn, dn)
             if beam_on:
-                _beam_segment(bgrid, bacc, acc, btabs, bray, curve, cs, x, d, param_end, t, s, ds, c_ref, par,
+                if deposit_on:
+                    _beam_segment(bgrid, bacc, acc, btabs, bray, curve, cs, x, d, param_end, t, s, ds, c_ref, par,
                               par_tmp, p_end, reflections, refl_cos, refl_mat, launch_cos, xs, ts)
                 paraxial.advance(par, param_end)
                 p_norm = _p_at(cs, param_end, p_end)
-                beams.ray_sample(bgrid, bacc, acc, btabs, bray, xn, dn, max_time, s + ds, p_norm / c_ref, par,
-                                 reflections, refl_cos, refl_mat, launch_cos, False)
+                if deposit_on:
+                    beams.ray_sample(bgrid, bacc, acc, btabs, bray, xn, dn, max_time, s + ds, p_norm / c_ref, par,
+                                     reflections, refl_cos, refl_mat, launch_cos, False)
             if f_on:
                 _deposit(
                     fld,
@@ -653,13 +659,14 @@ def trace_one(
         elif param != 0.0:
             zero_run += 1
         if beam_on:
-            _beam_segment(bgrid, bacc, acc, btabs, bray, curve, cs, x, d, param, t, s, ds, c_ref, par, par_tmp,
-                          p_end, reflections, refl_cos, refl_mat, launch_cos, xs, ts)
+            if deposit_on:
+                _beam_segment(bgrid, bacc, acc, btabs, bray, curve, cs, x, d, param, t, s, ds, c_ref, par, par_tmp,
+                              p_end, reflections, refl_cos, refl_mat, launch_cos, xs, ts)
             paraxial.advance(par, param)
             p_norm = _p_at(cs, param, p_end)
             if face >= 0:
                 paraxial.onto_face(par, planes[cell, face], p_end, g)
-                if neighbours[cell, face] < 0 or s + ds - bray.last[beams.S_ARC] >= btabs.chord_m:
+                if deposit_on and (neighbours[cell, face] < 0 or s + ds - bray.last[beams.S_ARC] >= btabs.chord_m):
                     beams.ray_sample(bgrid, bacc, acc, btabs, bray, xn, dn, t + dt, s + ds, p_norm / c_ref, par,
                                      reflections, refl_cos, refl_mat, launch_cos, False)
         if f_on:
@@ -803,7 +810,8 @@ def trace_one(
             entry = face
             if beam_on:
                 paraxial.reflect(par, planes[cell, face])
-                beams.ray_sample(bgrid, bacc, acc, btabs, bray, x, d, t, s, p_norm / c_ref, par, reflections,
+                if deposit_on:
+                    beams.ray_sample(bgrid, bacc, acc, btabs, bray, x, d, t, s, p_norm / c_ref, par, reflections,
                                  refl_cos, refl_mat, launch_cos, True)
             if record and t > t_last:
                 count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
@@ -833,9 +841,13 @@ def trace_one(
         )
     if record and (count == 0 or t > t_last):
         count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
-    if beam_on and s > bray.last[beams.S_ARC]:
+    if beam_on and deposit_on and s > bray.last[beams.S_ARC]:
         beams.ray_sample(bgrid, bacc, acc, btabs, bray, x, d, t, s, p_norm / c_ref, par, reflections, refl_cos,
                          refl_mat, launch_cos, False)
+    if want_par:
+        for i in range(paraxial.PAR_SIZE):
+            out_par[i] = par[i]
+        out_par[paraxial.PAR_SIZE] = p_norm if beam_on else math.nan
     for i in range(3):
         out_state[i] = x[i]
         out_state[3 + i] = d[i]
@@ -883,6 +895,7 @@ def trace_rays(
     bgrid,
     bacc,
     btabs,
+    out_par,
     out_state,
     out_counts,
 ):
@@ -895,7 +908,9 @@ def trace_rays(
     wind_code, wind_params : analytic wind for every ray (engine/wind.py; WIND_NONE: none).
     """
     n = origins.shape[0]
+    want_par = out_par.shape[0] == n
     for slot in nb.prange(n_slots):
+        spare = np.empty(paraxial.PAR_SIZE + 1)
         for i in range(slot, n, n_slots):
             trace_one(
                 planes,
@@ -930,6 +945,8 @@ def trace_rays(
                 refl_cos[i],
                 refl_mat[i],
                 (bgrid, bacc, btabs),
+                want_par,
+                out_par[i] if want_par else spare,
                 out_state[i],
                 out_counts[i],
             )
