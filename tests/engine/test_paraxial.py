@@ -17,7 +17,7 @@ import pytest
 import bentray  # noqa: F401
 from bentray.engine.constants import STATUS_EXITED
 from bentray.engine.media import build_media, build_terrain_media
-from bentray.engine.run import load_surfaces
+from bentray.engine.stages import load_surfaces
 from bentray.engine.tracer import trace
 from bentray.engine.wind import check_wind
 from bentray.scenes.profile_models import profile_from_spec
