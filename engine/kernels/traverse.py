@@ -79,7 +79,7 @@ from bentray.engine.constants import (
     STATUS_TIME_LIMIT,
     TINY_STEP_REL,
 )
-from bentray.engine.kernels import curves, field
+from bentray.engine.kernels import beams, curves, field, paraxial
 from bentray.engine.wind import WIND_NONE, effective_quantity
 
 # ---------------------------------------------------------------------------------------------
@@ -99,6 +99,8 @@ FS_TIME = 0  # travel time (s)
 FS_LENGTH = 1  # arc length (m)
 FS_T_LAST = 2  # time of the last recorded path sample (s)
 FS_SIZE = 3
+# final paraxial state written per ray when asked (Rays.out_par): X_el, X_az, P_el, P_az, |p|
+PAR_OUT_SIZE = paraxial.PAR_SIZE + 1
 
 
 class RayParams(NamedTuple):
@@ -135,7 +137,8 @@ class Rays(NamedTuple):
     origins, directions : (n, 3) m / any length; start_cells : (n,) int64 (-1: not in the mesh -> lost);
     f_weights : (n, n_f) band powers (n_f may be 0 without field); refl_cos, refl_mat : (n, R) first R
     reflections' incidence cosine and face material (written); out_state : (n, STATE_SIZE) float64,
-    out_counts : (n, COUNT_SIZE) int64 (written; columns constants.STATE_* / COUNT_*).
+    out_counts : (n, COUNT_SIZE) int64 (written; columns constants.STATE_* / COUNT_*);
+    out_par : (n, PAR_OUT_SIZE) final paraxial state (written), or (0, PAR_OUT_SIZE): not asked for.
     """
 
     origins: np.ndarray
@@ -146,6 +149,31 @@ class Rays(NamedTuple):
     refl_mat: np.ndarray
     out_state: np.ndarray
     out_counts: np.ndarray
+    out_par: np.ndarray
+
+
+class Beam(NamedTuple):
+    """The beam field of a trace call (engine/kernels/beams.py): grid, accumulators, tables."""
+
+    grid: beams.BeamGrid
+    acc: beams.BeamAcc
+    tabs: beams.BeamTables
+
+
+class RayBeam(NamedTuple):
+    """One ray's paraxial state and beam samples (docs/physics.md §10-11).
+
+    par : (12,) X_el, X_az, P_el, P_az; par_tmp : (12,) scratch; p_end : (3,) slowness vector p = n T at
+    the end of the current segment; samples : beams.BeamRay; bf : (2,) [|p| = n at the ray's point, cos of
+    the launch elevation]; bn : (2,) int [paraxial state on, beam deposits on].
+    """
+
+    par: np.ndarray
+    par_tmp: np.ndarray
+    p_end: np.ndarray
+    samples: beams.BeamRay
+    bf: np.ndarray
+    bn: np.ndarray
 
 
 class Ray(NamedTuple):
@@ -176,6 +204,7 @@ class Ray(NamedTuple):
     x_mid: np.ndarray
     path_base: int
     rf: field.RayField
+    bm: RayBeam
 
 
 # ---------------------------------------------------------------------------------------------
@@ -368,7 +397,7 @@ def _flush(mesh, prm, fld, ray, cell):
 # _advance and _finish_at_time (a segment inside a cell), _cross_face, _reflect, _finish.
 # ---------------------------------------------------------------------------------------------
 @nb.njit(**NJIT_FLAGS)
-def _new_ray(prm, paths, rays, i, acc):
+def _new_ray(prm, paths, rays, i, acc, beam):
     """Ray i at its launch: unit tangent, start cell, wind azimuth, empty counters, its field state."""
     x = rays.origins[i].copy()
     d = rays.directions[i].copy()
@@ -392,11 +421,127 @@ def _new_ray(prm, paths, rays, i, acc):
             e_wind[1] = d[1] / horizontal
             ns[NS_WIND] = prm.wind_code
     rf = field.new_ray_field(rays.f_weights[i], rays.refl_cos[i], rays.refl_mat[i], i, acc)
+    deposit_on = beam.grid.mode != beams.BEAM_OFF
+    want_par = rays.out_par.shape[0] > 0
+    bm = RayBeam(
+        np.zeros(paraxial.PAR_SIZE),
+        np.zeros(paraxial.PAR_SIZE),
+        np.zeros(3),
+        beams.new_ray(beam.grid.omega.shape[0]),
+        np.array([1.0, math.sqrt(d[0] * d[0] + d[1] * d[1])]),
+        np.array([1 if (deposit_on or want_par) else 0, 1 if deposit_on else 0], dtype=np.int64),
+    )
     e3 = np.empty
     return Ray(
         x, d, np.zeros(FS_SIZE), ns, e_wind, e3(3), np.zeros(curves.CS_SIZE), e3(3), e3(3), e3(3), e3(3), e3(3),
-        e3(3), e3(3), e3(3), e3(3), i * paths.cap, rf,
+        e3(3), e3(3), e3(3), e3(3), i * paths.cap, rf, bm,
     )  # fmt: skip
+
+
+# ---------------------------------------------------------------------------------------------
+# Paraxial state and beam samples (docs/physics.md §10-11; parabolic curve): the hooks below are no-ops
+# unless ray.bm.bn[0] (paraxial on) / ray.bm.bn[1] (beam deposits on).
+# ---------------------------------------------------------------------------------------------
+@nb.njit(**NJIT_FLAGS)
+def _beam_sample(prm, beam, ray, x, d, t, s, par, start_new):
+    """Record a beam sample at x (tangent d, time t, arc s) and deposit the chord that ends there."""
+    bm = ray.bm
+    beams.ray_sample(
+        beam.grid, beam.acc, ray.rf.acc, beam.tabs, bm.samples, x, d, t, s, bm.bf[0] / prm.c_ref, par,
+        ray.ns[COUNT_REFLECTIONS], ray.rf.refl_cos, ray.rf.refl_mat, bm.bf[1], start_new,
+    )  # fmt: skip
+
+
+@nb.njit(**NJIT_FLAGS)
+def _beam_launch(mesh, prm, beam, ray):
+    """Point-source launch derivatives, from n of the start cell's model (with the wind) at the source."""
+    bm = ray.bm
+    cell = ray.ns[NS_CELL]
+    if bm.bn[0] == 0 or cell < 0:
+        bm.bn[0] = 0
+        bm.bn[1] = 0
+        return
+    m = _media_at(mesh, cell, ray.x)
+    if ray.ns[NS_WIND] != WIND_NONE:
+        m = effective_quantity(
+            prm.curve, prm.c_ref, m, mesh.gradient[cell], prm.wind_code, prm.wind_params, ray.x, ray.e_wind,
+            ray.w_grad, ray.g_eff,
+        )  # fmt: skip
+    if not (m > 0.0):
+        bm.bn[0] = 0
+        bm.bn[1] = 0
+        return
+    bm.bf[0] = math.sqrt(m)
+    paraxial.launch(bm.par, ray.d, bm.bf[0])
+    if bm.bn[1]:
+        _beam_sample(prm, beam, ray, ray.x, ray.d, 0.0, 0.0, bm.par, True)
+
+
+@nb.njit(**NJIT_FLAGS)
+def _p_at(cs, sigma, p_out):
+    """Slowness vector p(sigma) = p0 + g sigma / 2 of the parabolic segment into p_out; returns |p| = n."""
+    nn = 0.0
+    for i in range(3):
+        p_out[i] = cs[i] + 0.5 * cs[3 + i] * sigma
+        nn += p_out[i] * p_out[i]
+    return math.sqrt(nn)
+
+
+@nb.njit(**NJIT_FLAGS)
+def _beam_along(prm, beam, ray, param, ds):
+    """A segment from the ray's x, d to param (arc ds): beam samples inside it when it is longer than the
+    chord length, then the paraxial state and p carried to its end (ray.x, ray.fs not yet moved)."""
+    bm = ray.bm
+    if bm.bn[1] and ds > beam.tabs.chord_m:
+        n_int = int(ds / beam.tabs.chord_m)
+        t0 = ray.fs[FS_TIME]
+        s0 = ray.fs[FS_LENGTH]
+        for j in range(1, n_int + 1):
+            prm_j = param * j / (n_int + 1)
+            ds_j = curves.evaluate(prm.curve, ray.cs, ray.x, ray.d, prm_j, ray.xs, ray.ts)
+            t_j = t0 + curves.time_at(prm.curve, ray.cs, prm_j, prm.c_ref)
+            paraxial.advanced_copy(bm.par, prm_j, bm.par_tmp)
+            n_j = _p_at(ray.cs, prm_j, bm.p_end)
+            n_keep = bm.bf[0]
+            bm.bf[0] = n_j
+            _beam_sample(prm, beam, ray, ray.xs, ray.ts, t_j, s0 + ds_j, bm.par_tmp, False)
+            bm.bf[0] = n_keep
+    paraxial.advance(bm.par, param)
+    bm.bf[0] = _p_at(ray.cs, param, bm.p_end)
+
+
+@nb.njit(**NJIT_FLAGS)
+def _beam_exit(mesh, prm, beam, ray, cell, face):
+    """The segment ended on ``face``: derivatives on the face; a sample there when the ray reflects or
+    leaves, or when the last sample is a chord length behind."""
+    bm = ray.bm
+    paraxial.onto_face(bm.par, mesh.planes[cell, face], bm.p_end, ray.g)
+    if bm.bn[1]:
+        fs = ray.fs
+        if mesh.neighbours[cell, face] < 0 or fs[FS_LENGTH] - bm.samples.last[beams.S_ARC] >= beam.tabs.chord_m:
+            _beam_sample(prm, beam, ray, ray.x, ray.d, fs[FS_TIME], fs[FS_LENGTH], bm.par, False)
+
+
+@nb.njit(**NJIT_FLAGS)
+def _beam_reflect(mesh, prm, beam, ray, cell, face):
+    """After a specular reflection: reflected derivatives and a new chord from the reflection point."""
+    bm = ray.bm
+    paraxial.reflect(bm.par, mesh.planes[cell, face])
+    if bm.bn[1]:
+        _beam_sample(prm, beam, ray, ray.x, ray.d, ray.fs[FS_TIME], ray.fs[FS_LENGTH], bm.par, True)
+
+
+@nb.njit(**NJIT_FLAGS)
+def _beam_finish(prm, beam, ray, out_par):
+    """The last chord, and the final paraxial state when asked for."""
+    bm = ray.bm
+    fs = ray.fs
+    if bm.bn[1] and fs[FS_LENGTH] > bm.samples.last[beams.S_ARC]:
+        _beam_sample(prm, beam, ray, ray.x, ray.d, fs[FS_TIME], fs[FS_LENGTH], bm.par, False)
+    if out_par.shape[0] > 0:
+        for i in range(paraxial.PAR_SIZE):
+            out_par[i] = bm.par[i]
+        out_par[paraxial.PAR_SIZE] = bm.bf[0] if bm.bn[0] else math.nan
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -476,12 +621,14 @@ def _resolve_stall(mesh, prm, ray, cell, m0):
 
 
 @nb.njit(**NJIT_FLAGS)
-def _finish_at_time(prm, fld, paths, ray, m0, param):
+def _finish_at_time(prm, fld, paths, ray, m0, param, beam):
     """The segment reaches max_time before its exit at ``param``: end the ray on the curve at max_time."""
     fs = ray.fs
     t = fs[FS_TIME]
     param_end = curves.param_at_time(prm.curve, ray.cs, prm.max_time - t, param, prm.c_ref)
     ds = curves.evaluate(prm.curve, ray.cs, ray.x, ray.d, param_end, ray.xn, ray.dn)
+    if ray.bm.bn[0]:
+        _beam_along(prm, beam, ray, param_end, ds)
     _deposit(prm, fld, ray, m0, param_end, prm.max_time - t, ds)
     if prm.record and prm.max_time - t > prm.dt_sample:
         _emit_segment(prm, paths, ray, param_end, prm.max_time)
@@ -494,7 +641,7 @@ def _finish_at_time(prm, fld, paths, ray, m0, param):
 
 
 @nb.njit(**NJIT_FLAGS)
-def _advance(prm, fld, paths, ray, m0, param, dt, cell_size):
+def _advance(prm, fld, paths, ray, m0, param, dt, cell_size, beam):
     """Move the ray along its curve to the exit at ``param`` (travel time dt): field deposit, path samples."""
     ns = ray.ns
     fs = ray.fs
@@ -504,6 +651,8 @@ def _advance(prm, fld, paths, ray, m0, param, dt, cell_size):
         ns[NS_ZERO_RUN] = 0
     elif param != 0.0:
         ns[NS_ZERO_RUN] += 1
+    if ray.bm.bn[0]:
+        _beam_along(prm, beam, ray, param, ds)
     _deposit(prm, fld, ray, m0, param, dt, ds)
     if prm.record and dt > prm.dt_sample:
         _emit_segment(prm, paths, ray, param, fs[FS_TIME] + dt)
@@ -547,7 +696,7 @@ def _cross_face(mesh, ray, cell, face, nxt):
 
 
 @nb.njit(**NJIT_FLAGS)
-def _reflect(mesh, prm, fld, paths, ray, cell, face, param):
+def _reflect(mesh, prm, fld, paths, ray, cell, face, param, beam):
     """Specular reflection off reflecting ``face`` (T' = T - 2 (T.m) m), or the reflection limit, or a
     slide along the face when the ray sits on it tangentially (|d . m| <= GRAZE_COS at a zero step)."""
     ns = ray.ns
@@ -580,13 +729,15 @@ def _reflect(mesh, prm, fld, paths, ray, cell, face, param):
         d[i] /= norm
     ns[COUNT_REFLECTIONS] = reflections + 1
     ns[NS_ENTRY] = face
+    if ray.bm.bn[0]:
+        _beam_reflect(mesh, prm, beam, ray, cell, face)
     if prm.record and fs[FS_TIME] > fs[FS_T_LAST]:
         _emit(paths, ray, ray.x, fs[FS_TIME], fs[FS_LENGTH])
         fs[FS_T_LAST] = fs[FS_TIME]
 
 
 @nb.njit(**NJIT_FLAGS)
-def _step(mesh, prm, fld, paths, ray):
+def _step(mesh, prm, fld, paths, ray, beam):
     """One segment: the cell's curve from x, its first exit, then stall, time limit or advance + exit."""
     ns = ray.ns
     if ns[COUNT_STEPS] >= prm.max_steps:
@@ -598,6 +749,10 @@ def _step(mesh, prm, fld, paths, ray):
     if not curves.setup(prm.curve, m0, ray.g, ray.d, ray.cs):
         ns[COUNT_STATUS] = STATUS_LOST
         return
+    if ray.bm.bn[0]:  # the segment restarts from this cell's model at x: p' = n'(x) d
+        n_new = math.sqrt(m0)
+        paraxial.restart(ray.bm.par, ray.d, ray.bm.bf[0], n_new, ray.g)
+        ray.bm.bf[0] = n_new
     cell_size = mesh.size[cell]
     planes = mesh.planes[cell]
     face, param = curves.find_exit(
@@ -615,25 +770,29 @@ def _step(mesh, prm, fld, paths, ray):
         ns[COUNT_STATUS] = STATUS_LOST
         return
     if ray.fs[FS_TIME] + dt >= prm.max_time:
-        _finish_at_time(prm, fld, paths, ray, m0, param)
+        _finish_at_time(prm, fld, paths, ray, m0, param, beam)
+        if ray.bm.bn[1]:
+            _beam_sample(prm, beam, ray, ray.x, ray.d, ray.fs[FS_TIME], ray.fs[FS_LENGTH], ray.bm.par, False)
         return
-    _advance(prm, fld, paths, ray, m0, param, dt, cell_size)
+    _advance(prm, fld, paths, ray, m0, param, dt, cell_size, beam)
     if ns[COUNT_STATUS] != STATUS_RUNNING:
         return
     if face < 0:
         ns[NS_ENTRY] = -1  # within-cell step (circular quarter turn): same cell, no entry face
         return
+    if ray.bm.bn[0]:
+        _beam_exit(mesh, prm, beam, ray, cell, face)
     nxt = mesh.neighbours[cell, face]
     if nxt >= 0:
         _cross_face(mesh, ray, cell, face, nxt)
     elif nxt == BOUNDARY_REFLECT:
-        _reflect(mesh, prm, fld, paths, ray, cell, face, param)
+        _reflect(mesh, prm, fld, paths, ray, cell, face, param, beam)
     else:
         ns[COUNT_STATUS] = STATUS_EXITED
 
 
 @nb.njit(**NJIT_FLAGS)
-def _finish(mesh, prm, fld, paths, ray, out_state, out_counts):
+def _finish(mesh, prm, fld, paths, ray, out_state, out_counts, beam, out_par):
     """The ray has stopped: deposit its pending field time, record the end point, write its outputs."""
     ns = ray.ns
     fs = ray.fs
@@ -642,6 +801,8 @@ def _finish(mesh, prm, fld, paths, ray, out_state, out_counts):
         _flush(mesh, prm, fld, ray, cell)
     if prm.record and (ns[COUNT_SAMPLES] == 0 or fs[FS_TIME] > fs[FS_T_LAST]):
         _emit(paths, ray, ray.x, fs[FS_TIME], fs[FS_LENGTH])
+    if ray.bm.bn[0] or out_par.shape[0] > 0:
+        _beam_finish(prm, beam, ray, out_par)
     for i in range(3):
         out_state[STATE_X + i] = ray.x[i]
         out_state[STATE_D + i] = ray.d[i]
@@ -652,31 +813,34 @@ def _finish(mesh, prm, fld, paths, ray, out_state, out_counts):
 
 
 @nb.njit(**NJIT_FLAGS)
-def trace_one(mesh, prm, fld, paths, rays, i, acc):
+def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
     """Trace ray i (rays.origins[i], rays.directions[i] from rays.start_cells[i]) to its end state.
 
     mesh : CellMesh; prm : RayParams; fld : field.FieldAcc (mode FIELD_OFF: no accumulation), written in
     accumulator slot ``acc``; paths : PathBuffers (ray i's slice); rays : Rays (row i read and written).
     """
-    ray = _new_ray(prm, paths, rays, i, acc)
+    ray = _new_ray(prm, paths, rays, i, acc, beam)
     if prm.record:
         _emit(paths, ray, ray.x, 0.0, 0.0)
     if ray.ns[NS_CELL] < 0:
         ray.ns[COUNT_STATUS] = STATUS_LOST
+    _beam_launch(mesh, prm, beam, ray)
     while ray.ns[COUNT_STATUS] == STATUS_RUNNING:
-        _step(mesh, prm, fld, paths, ray)
-    _finish(mesh, prm, fld, paths, ray, rays.out_state[i], rays.out_counts[i])
+        _step(mesh, prm, fld, paths, ray, beam)
+    out_par = rays.out_par[i] if rays.out_par.shape[0] > 0 else rays.out_par.reshape(-1)
+    _finish(mesh, prm, fld, paths, ray, rays.out_state[i], rays.out_counts[i], beam, out_par)
 
 
 @nb.njit(**PARALLEL_FLAGS)
-def trace_rays(mesh, prm, fld, paths, rays, n_slots):
+def trace_rays(mesh, prm, fld, paths, rays, n_slots, b_grid, b_acc, b_tabs):
     """Trace all rays in parallel (prange over ``n_slots`` accumulator slots, rays interleaved).
 
     Ray i owns row i of every ``rays`` array and the path slice ``[i * paths.cap, (i + 1) * paths.cap)``;
     field accumulator slot ``i % n_slots`` is only written by the one thread running that slot. For a
-    fixed n_slots the results are deterministic.
+    fixed n_slots the results are deterministic. b_grid, b_acc, b_tabs : the beam field (beams.BEAM_OFF in
+    b_grid.mode: none; passed apart because a parallel kernel does not take nested structs).
     """
     n = rays.origins.shape[0]
     for slot in nb.prange(n_slots):
         for i in range(slot, n, n_slots):
-            trace_one(mesh, prm, fld, paths, rays, i, slot)
+            trace_one(mesh, prm, fld, paths, rays, i, slot, Beam(b_grid, b_acc, b_tabs))
