@@ -31,13 +31,15 @@ exp(-k_a^2 (z - z_s)^2 / 2) (far-field amplitude exp(-sin^2(th)/2): -0.3 dB at 1
 sqrt(i k_a).
 
 Valid range: low elevation angles as seen from the source (< ~30-40 degrees; the phase screen is a
-narrow-angle approximation in a refracting medium, exact in homogeneous air), ranges r >> wavelength
+narrow-angle approximation in a refracting medium; in homogeneous air the wide starter is within
+0.3 dB up to 50 degrees, the Gaussian one loses 1.9 dB at 30 degrees), ranges r >> wavelength
 (the 1/sqrt(r) axisymmetric form: error O(1/(k r))), stratified c(z) (range-independent), flat ground,
 levels down to about 80 dB below the free field (deeper refractive shadows reach the floor set by the
 absorbing layer's residual reflection: -90 to -115 dB re free field at 500 Hz with the defaults).
 Accuracy (tests/reference/test_gfpe.py): homogeneous air, 100-1000 Hz, 50-1000 m, against the image
 source, <= 0.01 dB (rigid) and <= 0.11 dB (grass) away from interference dips; halving dr and dz in
-the log profiles changes levels by <= 0.2 dB away from dips.
+the log profiles changes levels by <= 0.2 dB away from dips; reciprocity (source 2 m / receiver 10 m
+swapped) holds within 0.33 dB in the log profiles at 100-500 Hz, 100-1000 m.
 """
 
 from __future__ import annotations

@@ -229,3 +229,43 @@ def test_bad_input() -> None:
         gfpe_tl(homogeneous(), 100.0, 2.0, [10.0], [500.0], z_top=100.0)
     with pytest.raises(ValueError, match="starter"):
         gfpe_tl(homogeneous(), 100.0, 2.0, [10.0], [1.0], starter="parabolic")
+
+
+@pytest.mark.parametrize("sigma", [None, SIGMA], ids=["rigid", "grass"])
+@pytest.mark.parametrize("f_hz", [100.0, 500.0])
+def test_wide_angles_homogeneous(f_hz: float, sigma: float | None) -> None:
+    """Elevations up to 50 degrees (r = 50 and 100 m, receivers 1-60 m, zs = 2 m), homogeneous air: the
+    default (wide) starter stays within 0.4 dB of the image source away from dips (measured 0.294 dB at
+    40-50 degrees, rigid, 100 Hz; 0.017 dB rigid 500 Hz; <= 0.224 dB over grass); the Gaussian starter
+    is up to 3.9 dB low at 20-45 degrees, as its amplitude exp(-sin^2(th)/2) predicts."""
+    r = np.array([50.0, 100.0])
+    z = np.arange(1.0, 60.0, 0.5)
+    pi = im.exact_pressure(f_hz, 2.0, r, z, sigma) if sigma else im.pressure(f_hz, 2.0, r, z)
+    away = np.abs(pi) >= 0.5 * 10.0 ** (-im.incoherent_tl(f_hz, 2.0, r, z, sigma) / 20.0)
+    ang = np.degrees(np.arctan((z[None, :] - 2.0) / r[:, None]))
+    pw = gfpe_pressure(homogeneous(C0), f_hz, 2.0, r, z, sigma)
+    pgs = gfpe_pressure(homogeneous(C0), f_hz, 2.0, r, z, sigma, starter="gaussian")
+    dw = np.abs(20 * np.log10(np.abs(pw) / np.abs(pi)))[away]
+    band = away & (ang > 20.0) & (ang <= 45.0)
+    dg = (20 * np.log10(np.abs(pgs) / np.abs(pi)))[band]
+    print(f"\n f={f_hz} ground={sigma}: wide max|dTL| {dw.max():.3f} dB; gaussian at 20-45 deg {dg.min():.2f} dB")
+    assert dw.max() < 0.4
+    assert dg.min() < -1.0  # the comparison can tell a narrow-angle starter
+
+
+@pytest.mark.parametrize("b", [1.0, -1.0], ids=["downward", "upward"])
+@pytest.mark.parametrize("sigma", [None, SIGMA], ids=["rigid", "grass"])
+@pytest.mark.parametrize("f_hz", [100.0, 500.0])
+def test_reciprocity_refracting(f_hz: float, sigma: float | None, b: float) -> None:
+    """Source 2 m / receiver 10 m against source 10 m / receiver 2 m in the log profiles, 100-1000 m:
+    the two runs (different starters, reference wavenumbers c(zs) and phase screens) agree within
+    0.5 dB where TL < 120 dB (measured <= 0.33 dB; deeper values sit on the absorbing-layer floor)."""
+    r = np.array([100.0, 300.0, 600.0, 1000.0])
+    prof = log_profile(C0, b, 1.0)
+    a = gfpe_pressure(prof, f_hz, 2.0, r, [10.0], sigma, z_top=300.0)[:, 0]
+    c = gfpe_pressure(prof, f_hz, 10.0, r, [2.0], sigma, z_top=300.0)[:, 0]
+    tl = -20 * np.log10(np.abs(a))
+    d = np.abs(20 * np.log10(np.abs(a) / np.abs(c)))[tl < 120.0]
+    print(f"\n f={f_hz} ground={sigma} b={b}: reciprocity max |dTL| {d.max():.3f} dB over {d.size} ranges")
+    assert d.size >= 2
+    assert d.max() < 0.5
