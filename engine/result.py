@@ -87,6 +87,7 @@ class JobOutcome:
     mesh_geometry: MeshGeometry | None
     report: dict[str, Any]
     field: Any | None = None  # engine.field.FieldArrays when the job asked for a field
+    receivers: Any | None = None  # engine.beam_field.ReceiverTable when the job lists receivers
 
 
 def concat_traces(parts: list[TraceResult]) -> TraceResult:

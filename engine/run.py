@@ -55,6 +55,7 @@ def run_job(
     traced = stages.stage_trace(job, plan, fan, runner, report_progress, log)
     report_progress("field", 0.9)
     field_arrays = stages.stage_field(job, profile, surfaces, traced, setup, log)
+    receivers = stages.stage_receivers(job, traced, setup, log)
     geometry = stages.stage_mesh_output(job, media, log)
     report = build_report(
         job,
@@ -67,5 +68,9 @@ def run_job(
         restarts=traced.restarts,
         field_stats=field_arrays.stats if field_arrays is not None else None,
     )
+    if receivers is not None:
+        report["receivers"] = receivers.stats
     report_progress("done", 1.0)
-    return JobOutcome(trace=traced.result, mesh_geometry=geometry, report=report, field=field_arrays)
+    return JobOutcome(
+        trace=traced.result, mesh_geometry=geometry, report=report, field=field_arrays, receivers=receivers
+    )

@@ -96,6 +96,7 @@ class FieldSetup(NamedTuple):
     template: FieldBuffers | beam_field.BeamBuffers | None
     powers: np.ndarray | None
     materials: list[float | None]
+    receivers_xyz: np.ndarray | None = None  # (P, 3) m, the job's receivers with heights resolved
 
 
 @dataclass
@@ -265,6 +266,42 @@ def _materials(job: Job, surfaces: SceneSurfaces | None) -> list[float | None]:
     return [None, job.scene.ground.flow_resistivity]
 
 
+def resolve_receivers(job: Job, surfaces: SceneSurfaces | None) -> np.ndarray:
+    """(P, 3) receiver points (m): absolute positions as given, ``xy`` + ``height_above_ground_m`` on the
+    terrain (or the flat ground at the domain bottom). Every point must be above the ground and outside
+    buildings (SceneSpecError naming ``receivers.<i>.position``)."""
+    lo, hi = _domain(job)
+    xyz = np.zeros((len(job.receivers), 3))
+    rel = []
+    for i, rec in enumerate(job.receivers):
+        if rec.position is not None:
+            xyz[i] = rec.position
+        else:
+            xyz[i, :2] = rec.horizontal
+            rel.append(i)
+    if rel:
+        idx = np.asarray(rel)
+        if surfaces is not None and surfaces.terrain is not None:
+            from bentray.engine.mesh.terrain import terrain_height_function
+
+            ground = np.asarray(terrain_height_function(surfaces.terrain, lo, hi)(xyz[idx, :2]), float)
+        else:
+            ground = np.full(idx.size, float(lo[2]))
+        heights = np.array([job.receivers[i].height_above_ground_m or 0.0 for i in rel])
+        xyz[idx, 2] = ground + np.maximum(heights, 1e-6)
+    names = [f"receivers.{i}.position" if r.position is not None else f"receivers.{i}.xy" for i, r in
+             enumerate(job.receivers)]  # fmt: skip
+    if surfaces is not None:
+        check_points_above_ground(
+            surfaces, xyz, names, flat_ground_z=float(lo[2]) if surfaces.terrain is None else None
+        )
+    bad = np.nonzero(~((xyz[:, 2] > lo[2]) & (xyz[:, 2] < hi[2])))[0]
+    if bad.size:
+        i = int(bad[0])
+        raise JobInputError(f"{names[i]}: the receiver at z = {xyz[i, 2]:g} m is outside the domain's z range")
+    return xyz
+
+
 def _grid_ground_z(job: Job, surfaces: SceneSurfaces | None) -> np.ndarray:
     """(nx, ny) ground height (m) under each column of the field grid: the terrain, else the flat ground."""
     spec = job.field
@@ -292,7 +329,7 @@ def stage_field_setup(
     """Ground material on the mesh, source powers (W) and the accumulator template (per-ray launch weights,
     tables; no slots: each batch allocates its own). Without a field: the mesh as it is, nothing else."""
     spec = job.field
-    if spec is None:
+    if spec is None and not job.receivers:
         return FieldSetup(mesh, None, None, [])
     with log.timed("field_setup"):
         materials = _materials(job, surfaces)
@@ -303,11 +340,13 @@ def stage_field_setup(
         lo = job.scene.box.min
         ground_point = np.array([[job.sources[0].position[0], job.sources[0].position[1], lo[2]]])
         powers = None
+        labels = spec.labels if spec is not None else beam_field.receiver_settings().labels
         if job.sources[0].power_db is not None:
             powers = np.array(
-                [[field_stage.W_REF * 10.0 ** (src.power_db[b] / 10.0) for b in spec.labels] for src in job.sources]
+                [[field_stage.W_REF * 10.0 ** (src.power_db[b] / 10.0) for b in labels] for src in job.sources]
             )
-        if spec.method == "beams":
+        receivers_xyz = resolve_receivers(job, surfaces) if job.receivers else None
+        if spec is None or spec.method == "beams":
             beam_template = beam_field.prepare(
                 spec,
                 elevation_deg=np.asarray(job.rays.elevation_deg.values(), float),
@@ -320,9 +359,10 @@ def stage_field_setup(
                 c_ref=float(profile.c_ref),
                 ground_sound_speed=float(profile.sound_speed(ground_point)[0]),
                 n_face_materials=int(mesh.face_material.max()) + 1 if mesh.face_material.size else 1,
-                ground_z=_grid_ground_z(job, surfaces) if spec.heights == "above_ground" else None,
+                ground_z=_grid_ground_z(job, surfaces) if spec is not None and spec.heights == "above_ground" else None,
+                receivers_xyz=receivers_xyz,
             )
-            return FieldSetup(mesh, beam_template, powers, materials)
+            return FieldSetup(mesh, beam_template, powers, materials, receivers_xyz)
         buffers = field_stage.prepare(
             spec,
             ray_weights=weights,
@@ -442,7 +482,7 @@ def stage_field(
     """Levels on the field grid from the summed accumulators, the preview's extras and fan-spacing advice."""
     spec = job.field
     buffers = traced.buffers
-    if spec is None or buffers is None:
+    if spec is None or buffers is None or (isinstance(buffers, beam_field.BeamBuffers) and buffers.grid is None):
         log.stages["field"] = "skipped: no field requested"
         return None
     lo, hi = _domain(job)
@@ -485,10 +525,23 @@ def stage_field(
             job.rays.azimuth_deg.values(),
         )
     how = "paraxial beams" if isinstance(buffers, beam_field.BeamBuffers) else "voxel ray density"
-    log.stages["field"] = (
-        f"ran: {spec.mode} ({how}), {buffers.grid.n_points} points, {len(spec.frequencies_hz)} bands"
-    )
+    log.stages["field"] = f"ran: {spec.mode} ({how}), {buffers.grid.n_points} points, {len(spec.frequencies_hz)} bands"
     return field_arrays
+
+
+def stage_receivers(job: Job, traced: Traced, setup: FieldSetup, log: StageLog) -> beam_field.ReceiverTable | None:
+    """Receiver levels (receivers.csv) from the beam accumulators at the job's receiver points."""
+    buffers = traced.buffers
+    if not job.receivers or not isinstance(buffers, beam_field.BeamBuffers) or setup.receivers_xyz is None:
+        log.stages["receivers"] = "skipped: no receivers in the job"
+        return None
+    with log.timed("receivers"):
+        table = beam_field.finalize_receivers(job.field, buffers, [r.id for r in job.receivers], setup.receivers_xyz)
+    log.stages["receivers"] = (
+        f"ran: {len(job.receivers)} receivers, coherent and incoherent levels from the beams "
+        f"({table.stats['without_beams']} reached by no beam)"
+    )
+    return table
 
 
 def stage_mesh_output(job: Job, media: Media, log: StageLog) -> MeshGeometry | None:

@@ -130,8 +130,13 @@ def run(quick: bool) -> Section:
         for n_el, n_az in fans:
             out, secs = _run(_image_job(n_el, n_az, method), repeats)
             e = image_errors(out.field.arrays[f"tl_{FREQ:g}hz"].ravel())
-            table.add(case="image", method=method, rays=n_el * n_az, seconds=round(secs, 4),
-                      **{k: round(v, 3) for k, v in e.items()})
+            table.add(
+                case="image",
+                method=method,
+                rays=n_el * n_az,
+                seconds=round(secs, 4),
+                **{k: round(v, 3) for k, v in e.items()},
+            )
             series.setdefault(f"image, {method}", []).append((secs, e["mean_db"]))
     try:
         from tests.reference.gfpe import gfpe_tl
@@ -143,15 +148,21 @@ def run(quick: bool) -> Section:
         from scipy.ndimage import median_filter
 
         dips = ref - median_filter(ref, size=25, mode="nearest") >= 6.0
-        for n_el in ([301, 1201] if quick else [151, 301, 601, 1201, 2401]):
+        for n_el in [301, 1201] if quick else [151, 301, 601, 1201, 2401]:
             out, secs = _run(_gfpe_job(n_el), repeats)
             tl = out.field.arrays[f"tl_{FREQ:g}hz"].ravel()
             w = out.field.arrays["beam_weight"].ravel()
             ok = (w >= 0.5) & ~dips
             d = np.abs(tl - ref)[ok]
-            table.add(case="gfpe A-LD grass", method="beams", rays=n_el, mean_db=round(float(d.mean()), 3),
-                      max_db=round(float(d.max()), 3), no_value=round(float(np.mean(~np.isfinite(tl))), 3),
-                      seconds=round(secs, 4))
+            table.add(
+                case="gfpe A-LD grass",
+                method="beams",
+                rays=n_el,
+                mean_db=round(float(d.mean()), 3),
+                max_db=round(float(d.max()), 3),
+                no_value=round(float(np.mean(~np.isfinite(tl))), 3),
+                seconds=round(secs, 4),
+            )
             series.setdefault("gfpe A-LD, beams", []).append((secs, float(d.mean())))
     sec = Section("field_error", "Field error against run time")
     sec.text.append(

@@ -110,6 +110,22 @@ class BeamAcc(NamedTuple):
     hits: np.ndarray
 
 
+class BeamPoints(NamedTuple):
+    """Receiver points for beam levels, binned for the chord search.
+
+    xyz : (P, 3) metres, world frame; bin_origin : (3,) lower corner of bin (0, 0, 0); bin_size : edge (m);
+    bin_shape : (3,) int64; bin_start : (n_bins + 1,) int64 CSR offsets into bin_items (P,) int64; a point
+    lies in bin floor((x - bin_origin) / bin_size) (clipped to the bin grid).
+    """
+
+    xyz: np.ndarray
+    bin_origin: np.ndarray
+    bin_size: float
+    bin_shape: np.ndarray
+    bin_start: np.ndarray
+    bin_items: np.ndarray
+
+
 def group_index(n_refl_groups: int, reflections: int, kmah: int) -> int:
     """Plain-Python mirror of the kernels' group numbering (tests and the finaliser)."""
     return min(reflections, n_refl_groups - 1) * N_KMAH + min(kmah, N_KMAH - 1)
@@ -236,20 +252,97 @@ def _turn(re, im, kmah):
     return -im, re
 
 
-@nb.njit(**NJIT_FLAGS)
-def deposit_chord(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos):
-    """Add the beam of the chord from sample ``sa`` to sample ``sb`` to every field point it owns.
-
-    sa, sb : (SAMPLE_SIZE,) sample records; amp_a, amp_b : (2, F) complex amplitude factor per band
-    at the two samples (reflection coefficients, absorption, caustic phase; re in row 0, im in row 1);
-    group : arrival group of the chord; kmah : caustics passed (the amplitude turns by (-i)^kmah, time
-    factor exp(-i w t)); launch_cos : cos(launch elevation) (I / I_1m = launch_cos / J).
-    Returns the number of field points that received a contribution.
-    """
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _point_beam(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos, px, py, pz, v, scratch):
+    """The chord's beam at point (px, py, pz), accumulated into point v of ``acc``; False if it does not
+    own the point or its hat weight is zero. scratch : (15,) work array."""
+    da = (px - sa[S_X]) * sa[S_T] + (py - sa[S_X + 1]) * sa[S_T + 1] + (pz - sa[S_X + 2]) * sa[S_T + 2]
+    if da < 0.0:
+        return False
+    db = (px - sb[S_X]) * sb[S_T] + (py - sb[S_X + 1]) * sb[S_T + 1] + (pz - sb[S_X + 2]) * sb[S_T + 2]
+    if db >= 0.0:
+        return False
     dg1 = grid.dgamma[0]
     dg2 = grid.dgamma[1]
-    w_min = grid.w_min
-    reach = max(_half_width(sa, dg1, dg2, w_min), _half_width(sb, dg1, dg2, w_min))
+    basis = scratch[0:6]
+    x1 = scratch[6:9]
+    x2 = scratch[9:12]
+    tf = scratch[12:15]
+    u = da / (da - db)
+    v_ = 1.0 - u
+    tn = 0.0
+    for a in range(3):
+        tf[a] = v_ * sa[S_T + a] + u * sb[S_T + a]
+        tn += tf[a] * tf[a]
+    tn = math.sqrt(tn)
+    q0 = px - (v_ * sa[S_X] + u * sb[S_X])
+    q1 = py - (v_ * sa[S_X + 1] + u * sb[S_X + 1])
+    q2 = pz - (v_ * sa[S_X + 2] + u * sb[S_X + 2])
+    for a in range(3):
+        tf[a] /= tn
+        x1[a] = v_ * sa[S_X1 + a] + u * sb[S_X1 + a]
+        x2[a] = v_ * sa[S_X2 + a] + u * sb[S_X2 + a]
+    arc = v_ * sa[S_ARC] + u * sb[S_ARC]
+    a11, a12, a22, _ = _transverse_basis(x1, x2, tf, dg1, dg2, grid.w_min, arc, basis)
+    qa = q0 * tf[0] + q1 * tf[1] + q2 * tf[2]
+    qp0 = q0 - qa * tf[0]
+    qp1 = q1 - qa * tf[1]
+    qp2 = q2 - qa * tf[2]
+    c1 = qp0 * basis[0] + qp1 * basis[1] + qp2 * basis[2]
+    c2 = qp0 * basis[3] + qp1 * basis[4] + qp2 * basis[5]
+    g2 = c2 / a22
+    g1 = (c1 - a12 * g2) / a11
+    h1 = 1.0 - abs(g1) / dg1
+    if h1 <= 0.0:
+        return False
+    h2 = 1.0 - abs(g2) / dg2
+    if h2 <= 0.0:
+        return False
+    w = h1 * h2
+    rel_i = launch_cos / (a11 * a22)
+    acc.weight[slot, group, v] += w
+    acc.hits[slot, v] += 1.0
+    n_f = grid.omega.shape[0]
+    if grid.mode != BEAM_COHERENT:
+        for f in range(n_f):
+            re = v_ * amp_a[0, f] + u * amp_b[0, f]
+            im = v_ * amp_a[1, f] + u * amp_b[1, f]
+            acc.energy[slot, group, f, v] += w * rel_i * (re * re + im * im)
+    if grid.mode != BEAM_INCOHERENT:
+        # travel time to the point: foot time, along-tangent offset, wavefront curvature
+        pd0 = 0.0
+        for a in range(3):
+            pd = (v_ * sa[S_P1 + a] + u * sb[S_P1 + a]) * g1 + (v_ * sa[S_P2 + a] + u * sb[S_P2 + a]) * g2
+            if a == 0:
+                pd0 += qp0 * pd
+            elif a == 1:
+                pd0 += qp1 * pd
+            else:
+                pd0 += qp2 * pd
+        tau = v_ * sa[S_TIME] + u * sb[S_TIME] + qa * (v_ * sa[S_SLOW] + u * sb[S_SLOW]) + 0.5 * pd0 / grid.c_ref
+        amp = w * math.sqrt(rel_i)
+        for f in range(n_f):
+            re, im = _turn(v_ * amp_a[0, f] + u * amp_b[0, f], v_ * amp_a[1, f] + u * amp_b[1, f], kmah)
+            ph = grid.omega[f] * tau
+            cph = math.cos(ph)
+            sph = math.sin(ph)
+            acc.s_re[slot, group, f, v] += amp * (re * cph - im * sph)
+            acc.s_im[slot, group, f, v] += amp * (re * sph + im * cph)
+    return True
+
+
+@nb.njit(**NJIT_FLAGS)
+def deposit_chord(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos):
+    """Add the beam of the chord from sample ``sa`` to sample ``sb`` to every grid point it owns.
+
+    sa, sb : (SAMPLE_SIZE,) sample records; amp_a, amp_b : (2, F) complex amplitude factor per band
+    at the two samples (reflection coefficients, absorption; re in row 0, im in row 1);
+    group : arrival group of the chord; kmah : caustics passed (the amplitude turns by (-i)^kmah, time
+    factor exp(-i w t)); launch_cos : cos(launch elevation) (I / I_1m = launch_cos / J).
+    Returns the number of grid points that received a contribution.
+    """
+    reach = max(_half_width(sa, grid.dgamma[0], grid.dgamma[1], grid.w_min),
+                _half_width(sb, grid.dgamma[0], grid.dgamma[1], grid.w_min))  # fmt: skip
     nx = grid.shape[0]
     ny = grid.shape[1]
     nz = grid.shape[2]
@@ -265,15 +358,7 @@ def deposit_chord(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos
     )
     z_lo = min(sa[S_X + 2], sb[S_X + 2]) - reach
     z_hi = max(sa[S_X + 2], sb[S_X + 2]) + reach
-    n_f = grid.omega.shape[0]
-    mode = grid.mode
-    coherent = mode != BEAM_INCOHERENT
-    incoherent = mode != BEAM_COHERENT
-    c_ref = grid.c_ref
-    basis = np.empty(6)
-    x1 = np.empty(3)
-    x2 = np.empty(3)
-    tf = np.empty(3)
+    scratch = np.empty(15)
     count = 0
     for i in range(i0, i1 + 1):
         px = grid.origin[0] + i * grid.spacing[0]
@@ -282,79 +367,44 @@ def deposit_chord(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos
             zo = grid.origin[2] + grid.z_offset[i, j]
             k0, k1 = _index_range(z_lo, z_hi, zo, grid.spacing[2], nz)
             for k in range(k0, k1 + 1):
-                pz = zo + k * grid.spacing[2]
-                da = (px - sa[S_X]) * sa[S_T] + (py - sa[S_X + 1]) * sa[S_T + 1] + (pz - sa[S_X + 2]) * sa[S_T + 2]
-                if da < 0.0:
-                    continue
-                db = (px - sb[S_X]) * sb[S_T] + (py - sb[S_X + 1]) * sb[S_T + 1] + (pz - sb[S_X + 2]) * sb[S_T + 2]
-                if db >= 0.0:
-                    continue
-                u = da / (da - db)
-                v_ = 1.0 - u
-                tn = 0.0
-                for a in range(3):
-                    tf[a] = v_ * sa[S_T + a] + u * sb[S_T + a]
-                    tn += tf[a] * tf[a]
-                tn = math.sqrt(tn)
-                q0 = px - (v_ * sa[S_X] + u * sb[S_X])
-                q1 = py - (v_ * sa[S_X + 1] + u * sb[S_X + 1])
-                q2 = pz - (v_ * sa[S_X + 2] + u * sb[S_X + 2])
-                for a in range(3):
-                    tf[a] /= tn
-                    x1[a] = v_ * sa[S_X1 + a] + u * sb[S_X1 + a]
-                    x2[a] = v_ * sa[S_X2 + a] + u * sb[S_X2 + a]
-                arc = v_ * sa[S_ARC] + u * sb[S_ARC]
-                a11, a12, a22, _ = _transverse_basis(x1, x2, tf, dg1, dg2, w_min, arc, basis)
-                qa = q0 * tf[0] + q1 * tf[1] + q2 * tf[2]
-                qp0 = q0 - qa * tf[0]
-                qp1 = q1 - qa * tf[1]
-                qp2 = q2 - qa * tf[2]
-                c1 = qp0 * basis[0] + qp1 * basis[1] + qp2 * basis[2]
-                c2 = qp0 * basis[3] + qp1 * basis[4] + qp2 * basis[5]
-                g2 = c2 / a22
-                g1 = (c1 - a12 * g2) / a11
-                h1 = 1.0 - abs(g1) / dg1
-                if h1 <= 0.0:
-                    continue
-                h2 = 1.0 - abs(g2) / dg2
-                if h2 <= 0.0:
-                    continue
-                w = h1 * h2
-                rel_i = launch_cos / (a11 * a22)
                 v = (i * ny + j) * nz + k
-                acc.weight[slot, group, v] += w
-                acc.hits[slot, v] += 1.0
-                count += 1
-                if incoherent:
-                    for f in range(n_f):
-                        re = v_ * amp_a[0, f] + u * amp_b[0, f]
-                        im = v_ * amp_a[1, f] + u * amp_b[1, f]
-                        acc.energy[slot, group, f, v] += w * rel_i * (re * re + im * im)
-                if coherent:
-                    # travel time to the point: foot time, along-tangent offset, wavefront curvature
-                    pd0 = 0.0
-                    for a in range(3):
-                        pd = (v_ * sa[S_P1 + a] + u * sb[S_P1 + a]) * g1 + (v_ * sa[S_P2 + a] + u * sb[S_P2 + a]) * g2
-                        if a == 0:
-                            pd0 += qp0 * pd
-                        elif a == 1:
-                            pd0 += qp1 * pd
-                        else:
-                            pd0 += qp2 * pd
-                    tau = (
-                        v_ * sa[S_TIME]
-                        + u * sb[S_TIME]
-                        + qa * (v_ * sa[S_SLOW] + u * sb[S_SLOW])
-                        + 0.5 * pd0 / c_ref
-                    )
-                    amp = w * math.sqrt(rel_i)
-                    for f in range(n_f):
-                        re, im = _turn(v_ * amp_a[0, f] + u * amp_b[0, f], v_ * amp_a[1, f] + u * amp_b[1, f], kmah)
-                        ph = grid.omega[f] * tau
-                        cph = math.cos(ph)
-                        sph = math.sin(ph)
-                        acc.s_re[slot, group, f, v] += amp * (re * cph - im * sph)
-                        acc.s_im[slot, group, f, v] += amp * (re * sph + im * cph)
+                if _point_beam(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos, px, py,
+                               zo + k * grid.spacing[2], v, scratch):  # fmt: skip
+                    count += 1
+    return count
+
+
+@nb.njit(**NJIT_FLAGS)
+def deposit_points(grid, acc, pts, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos):
+    """The same for a list of receiver points (BeamPoints: binned on a coarse regular grid)."""
+    n_pts = pts.xyz.shape[0]
+    if n_pts == 0:
+        return 0
+    reach = max(_half_width(sa, grid.dgamma[0], grid.dgamma[1], grid.w_min),
+                _half_width(sb, grid.dgamma[0], grid.dgamma[1], grid.w_min))  # fmt: skip
+    lo = np.empty(3, np.int64)
+    hi = np.empty(3, np.int64)
+    for a in range(3):
+        lo[a], hi[a] = _index_range(
+            min(sa[S_X + a], sb[S_X + a]) - reach - pts.bin_size,
+            max(sa[S_X + a], sb[S_X + a]) + reach,
+            pts.bin_origin[a],
+            pts.bin_size,
+            pts.bin_shape[a],
+        )
+    scratch = np.empty(15)
+    count = 0
+    ny = pts.bin_shape[1]
+    nz = pts.bin_shape[2]
+    for i in range(lo[0], hi[0] + 1):
+        for j in range(lo[1], hi[1] + 1):
+            for k in range(lo[2], hi[2] + 1):
+                b = (i * ny + j) * nz + k
+                for e in range(pts.bin_start[b], pts.bin_start[b + 1]):
+                    v = pts.bin_items[e]
+                    if _point_beam(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos, pts.xyz[v, 0],
+                                   pts.xyz[v, 1], pts.xyz[v, 2], v, scratch):  # fmt: skip
+                        count += 1
     return count
 
 
@@ -412,9 +462,21 @@ def _amplitude(tabs, arc, n_refl, refl_cos, refl_mat, out):
         out[1, f] = im
 
 
+class Beam(NamedTuple):
+    """The beam field of a trace call: the grid (BeamGrid, BeamAcc), the per-band tables, and the receiver
+    points (p_grid holds their constants, in BEAM_SEMICOHERENT mode so that both coherent and incoherent
+    levels can be formed; p_acc their accumulators; pts their positions)."""
+
+    grid: BeamGrid
+    acc: BeamAcc
+    tabs: BeamTables
+    p_grid: BeamGrid
+    p_acc: BeamAcc
+    pts: BeamPoints
+
+
 @nb.njit(**NJIT_FLAGS)
-def ray_sample(grid, acc, slot, tabs, ray, x, tangent, time, arc, slow, par, n_refl, refl_cos, refl_mat,
-               launch_cos, start_new):
+def ray_sample(beam, slot, ray, x, tangent, time, arc, slow, par, n_refl, refl_cos, refl_mat, launch_cos, start_new):
     """Record a sample of the ray and deposit the chord from the previous one (unless start_new).
 
     x, tangent : (3,) position (m) and unit tangent; time (s), arc (m), slow = 1/c (s/m) there;
@@ -441,12 +503,19 @@ def ray_sample(grid, acc, slot, tabs, ray, x, tangent, time, arc, slow, par, n_r
             ray.ist[1] += 1
         ray.ist[2] = sign
     cur[S_JSIGN] = sign
-    _amplitude(tabs, arc, n_refl, refl_cos, refl_mat, ray.amp_cur)
+    _amplitude(beam.tabs, arc, n_refl, refl_cos, refl_mat, ray.amp_cur)
     reached = 0
     if ray.ist[0] != 0 and not start_new:
         kmah = ray.ist[1]
-        group = chord_group(grid.n_refl, n_refl, kmah)
-        reached = deposit_chord(grid, acc, slot, ray.last, cur, ray.amp_last, ray.amp_cur, group, kmah, launch_cos)
+        grid = beam.grid
+        if grid.mode != BEAM_OFF:
+            group = chord_group(grid.n_refl, n_refl, kmah)
+            reached = deposit_chord(grid, beam.acc, slot, ray.last, cur, ray.amp_last, ray.amp_cur, group, kmah,
+                                    launch_cos)  # fmt: skip
+        if beam.pts.xyz.shape[0] > 0:
+            group = chord_group(beam.p_grid.n_refl, n_refl, kmah)
+            reached += deposit_points(beam.p_grid, beam.p_acc, beam.pts, slot, ray.last, cur, ray.amp_last,
+                                      ray.amp_cur, group, kmah, launch_cos)  # fmt: skip
     for i in range(SAMPLE_SIZE):
         ray.last[i] = cur[i]
     for f in range(ray.amp_cur.shape[1]):

@@ -152,14 +152,6 @@ class Rays(NamedTuple):
     out_par: np.ndarray
 
 
-class Beam(NamedTuple):
-    """The beam field of a trace call (engine/kernels/beams.py): grid, accumulators, tables."""
-
-    grid: beams.BeamGrid
-    acc: beams.BeamAcc
-    tabs: beams.BeamTables
-
-
 class RayBeam(NamedTuple):
     """One ray's paraxial state and beam samples (docs/physics.md §10-11).
 
@@ -421,7 +413,7 @@ def _new_ray(prm, paths, rays, i, acc, beam):
             e_wind[1] = d[1] / horizontal
             ns[NS_WIND] = prm.wind_code
     rf = field.new_ray_field(rays.f_weights[i], rays.refl_cos[i], rays.refl_mat[i], i, acc)
-    deposit_on = beam.grid.mode != beams.BEAM_OFF
+    deposit_on = beam.grid.mode != beams.BEAM_OFF or beam.pts.xyz.shape[0] > 0
     want_par = rays.out_par.shape[0] > 0
     bm = RayBeam(
         np.zeros(paraxial.PAR_SIZE),
@@ -447,8 +439,8 @@ def _beam_sample(prm, beam, ray, x, d, t, s, par, start_new):
     """Record a beam sample at x (tangent d, time t, arc s) and deposit the chord that ends there."""
     bm = ray.bm
     beams.ray_sample(
-        beam.grid, beam.acc, ray.rf.acc, beam.tabs, bm.samples, x, d, t, s, bm.bf[0] / prm.c_ref, par,
-        ray.ns[COUNT_REFLECTIONS], ray.rf.refl_cos, ray.rf.refl_mat, bm.bf[1], start_new,
+        beam, ray.rf.acc, bm.samples, x, d, t, s, bm.bf[0] / prm.c_ref, par, ray.ns[COUNT_REFLECTIONS],
+        ray.rf.refl_cos, ray.rf.refl_mat, bm.bf[1], start_new,
     )  # fmt: skip
 
 
@@ -832,15 +824,16 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
 
 
 @nb.njit(**PARALLEL_FLAGS)
-def trace_rays(mesh, prm, fld, paths, rays, n_slots, b_grid, b_acc, b_tabs):
+def trace_rays(mesh, prm, fld, paths, rays, n_slots, b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts):
     """Trace all rays in parallel (prange over ``n_slots`` accumulator slots, rays interleaved).
 
     Ray i owns row i of every ``rays`` array and the path slice ``[i * paths.cap, (i + 1) * paths.cap)``;
     field accumulator slot ``i % n_slots`` is only written by the one thread running that slot. For a
-    fixed n_slots the results are deterministic. b_grid, b_acc, b_tabs : the beam field (beams.BEAM_OFF in
-    b_grid.mode: none; passed apart because a parallel kernel does not take nested structs).
+    fixed n_slots the results are deterministic. b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts : the beam
+    field and the receiver points (beams.Beam; BEAM_OFF in b_grid.mode and no points: none; passed apart
+    because a parallel kernel does not take nested structs).
     """
     n = rays.origins.shape[0]
     for slot in nb.prange(n_slots):
         for i in range(slot, n, n_slots):
-            trace_one(mesh, prm, fld, paths, rays, i, slot, Beam(b_grid, b_acc, b_tabs))
+            trace_one(mesh, prm, fld, paths, rays, i, slot, beams.Beam(b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts))
