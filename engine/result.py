@@ -53,6 +53,8 @@ class TraceResult:
     # (n, R) incidence cosine |T.m| and face material of each ray's first R reflections (field runs only)
     reflection_cos: np.ndarray | None = None
     reflection_material: np.ndarray | None = None
+    # (n, 13) final paraxial state when asked for: X_el, X_az (m/rad), P_el, P_az (1/rad; p = n T), |p| = n
+    paraxial: np.ndarray | None = None
 
     @property
     def n_rays(self) -> int:
@@ -85,6 +87,7 @@ class JobOutcome:
     mesh_geometry: MeshGeometry | None
     report: dict[str, Any]
     field: Any | None = None  # engine.field.FieldArrays when the job asked for a field
+    receivers: Any | None = None  # engine.beam_field.ReceiverTable when the job lists receivers
 
 
 def concat_traces(parts: list[TraceResult]) -> TraceResult:
@@ -136,6 +139,7 @@ def concat_traces(parts: list[TraceResult]) -> TraceResult:
         steps=cat("steps"),  # type: ignore[arg-type]
         reflection_cos=cat("reflection_cos"),
         reflection_material=cat("reflection_material"),
+        paraxial=cat("paraxial"),
     )
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from bentray.engine.beam_field import BeamBuffers, no_beam_args
 from bentray.engine.constants import (
     COUNT_CROSSINGS,
     COUNT_NUDGES,
@@ -21,7 +22,7 @@ from bentray.engine.constants import (
     STATE_X,
 )
 from bentray.engine.field_buffers import REFLECTION_RECORD_CAP, FieldBuffers, no_field_tuple
-from bentray.engine.kernels.traverse import PathBuffers, RayParams, Rays, trace_rays
+from bentray.engine.kernels.traverse import PAR_OUT_SIZE, PathBuffers, RayParams, Rays, trace_rays
 from bentray.engine.mesh.cells import CellMesh
 from bentray.engine.result import RayPaths, TraceResult
 from bentray.engine.wind import check_wind
@@ -62,8 +63,9 @@ def trace(
     max_reflections: int,
     max_steps: int = 10_000_000,
     path_samples: int = 0,
-    field: FieldBuffers | None = None,
+    field: FieldBuffers | BeamBuffers | None = None,
     wind: tuple[int, np.ndarray] | None = None,
+    paraxial: bool = False,
 ) -> TraceResult:
     """Trace rays through ``mesh`` with the given curve kind.
 
@@ -75,6 +77,9 @@ def trace(
     wind : (code, params) of engine.wind.wind_spec, or None (no wind: code 0 and an empty array go to the
         kernel). With wind each ray traces the effective medium c + u(x) . e, e its unit horizontal launch
         azimuth (physics.md section 7); ``mesh`` carries c alone (no per-cell wind arrays).
+    field may also be a beam_field.BeamBuffers (beam fields; parabolic curve only).
+    paraxial : also return each ray's final paraxial state (TraceResult.paraxial, (n, 13): X_el, X_az,
+        P_el, P_az, |p|; parabolic curve only; docs/physics.md §10).
     Returns a TraceResult with launch angles left at NaN (the caller fills them in).
     """
     origins, directions, start_cells = ray_inputs(curve, origins, directions, start_cells, max_time_s)
@@ -89,7 +94,17 @@ def trace(
     dt_sample = max_time_s / max(path_samples, 1)
     out_state = np.zeros((n, STATE_SIZE))
     out_counts = np.zeros((n, COUNT_SIZE), dtype=np.int64)
-    if field is not None:
+    beam = no_beam_args()
+    if (paraxial or isinstance(field, BeamBuffers)) and curve != "parabolic":
+        raise ValueError("paraxial rays and beam fields need the parabolic curve")
+    if isinstance(field, BeamBuffers):
+        if field.weights.shape[0] != n:
+            raise ValueError("field weights must have one row per ray")
+        fld, f_weights = no_field_tuple(n)
+        n_slots = field.n_slots
+        beam = field.kernel_args()
+        refl_cap = REFLECTION_RECORD_CAP
+    elif field is not None:
         if field.weights.shape[0] != n:
             raise ValueError("field weights must have one row per ray")
         fld, f_weights, n_slots = field.kernel_tuple(), field.weights, field.n_slots
@@ -111,8 +126,9 @@ def trace(
         record,
         float(dt_sample),
     )
-    rays = Rays(origins, directions, start_cells, f_weights, refl_cos, refl_mat, out_state, out_counts)
-    trace_rays(mesh, prm, fld, PathBuffers(path_pts, path_t, path_s, cap), rays, n_slots)
+    out_par = np.full((n if paraxial else 0, PAR_OUT_SIZE), np.nan)
+    rays = Rays(origins, directions, start_cells, f_weights, refl_cos, refl_mat, out_state, out_counts, out_par)
+    trace_rays(mesh, prm, fld, PathBuffers(path_pts, path_t, path_s, cap), rays, n_slots, *beam)
     paths = None
     if record:
         counts = out_counts[:, COUNT_SAMPLES]
@@ -137,4 +153,5 @@ def trace(
         steps=out_counts[:, COUNT_STEPS].copy(),
         reflection_cos=refl_cos if field is not None else None,
         reflection_material=refl_mat if field is not None else None,
+        paraxial=out_par if paraxial else None,
     )

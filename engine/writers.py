@@ -52,7 +52,7 @@ RAYS_CSV_COLUMNS = (
     "status",
 )
 # Every file name write_outcome may produce (stale ones from an earlier run are removed).
-OUTPUT_FILES = ("rays.csv", "rays.vtp", "mesh.vtu", "field.vti", "preview.png", "report.json")
+OUTPUT_FILES = ("rays.csv", "rays.vtp", "mesh.vtu", "field.vti", "preview.png", "receivers.csv", "report.json")
 _KNOWN_OUTPUTS = ("rays", "paths", "mesh", "report", "field")
 _CSV_CHUNK_ROWS = 65_536
 _VTK_CELL_TYPES = {"tetra": (10, 4), "hexahedron": (12, 8)}  # name -> (VTK cell type id, points per cell)
@@ -293,6 +293,19 @@ def _write_preview(outcome: JobOutcome, path: Path) -> None:
     )
 
 
+def write_receivers_csv(table: Any, path: str | Path) -> Path:
+    """receivers.csv: one row per receiver, columns of engine.beam_field.ReceiverTable (levels in dB)."""
+    import csv
+
+    path = Path(path)
+    with path.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=table.columns)
+        writer.writeheader()
+        for row in table.rows:
+            writer.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in row.items()})
+    return path
+
+
 def _planned_files(outcome: JobOutcome, outputs: list[str]) -> list[str]:
     unknown = [name for name in outputs if name not in _KNOWN_OUTPUTS]
     if unknown:
@@ -313,6 +326,8 @@ def _planned_files(outcome: JobOutcome, outputs: list[str]) -> list[str]:
         if outcome.field is None:
             raise ValueError("output 'field' was requested but the job produced no field")
         files.extend(["field.vti", "preview.png"])
+    if outcome.receivers is not None:
+        files.append("receivers.csv")  # receivers are listed in the job: their levels are its output
     if "report" in outputs:
         files.append("report.json")
     return files
@@ -339,6 +354,7 @@ def write_outcome(outcome: JobOutcome, outputs: list[str], out_dir: str | Path) 
         "report.json": lambda p: write_report_json(outcome.report, p),
         "field.vti": lambda p: _write_field(outcome, p),
         "preview.png": lambda p: _write_preview(outcome, p),
+        "receivers.csv": lambda p: write_receivers_csv(outcome.receivers, p),
     }
     parent = out_dir.absolute().parent
     parent.mkdir(parents=True, exist_ok=True)

@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 OCTAVE_BANDS_HZ: tuple[float, ...] = (63.0, 125.0, 250.0, 500.0, 1000.0, 2000.0, 4000.0, 8000.0)
 # 50M points x 8 bands x 8 bytes x threads: a few GB at most; larger maps are split into tiles.
@@ -33,7 +33,16 @@ class FieldSpec(BaseModel):
     frequency from arrival amplitudes and exact travel times; one source). ``humidity_percent``,
     ``temperature_c`` and ``pressure_kpa`` set ISO 9613-1 absorption (``absorption`` false: none).
     ``receiver_height_m``: height of the preview's horizontal slice above the ground.
-    ``sample_fraction``: sub-interval length along the curves as a fraction of the smallest spacing.
+    ``sample_fraction``: sub-interval length along the curves as a fraction of the smallest spacing
+    (``method`` "voxels" only).
+    ``method``: "beams" (default: geometric beams around paraxial rays, each ray's own spreading; modes
+    coherent, incoherent, semicoherent) or "voxels" (the older ray-density estimate per voxel, kept as
+    the bench's reference point; coherent and incoherent). ``chord_m``: beam chord length along the
+    rays (default twice the smallest spacing within [1, 10] m); ``beam_min_width_m``: smallest beam
+    half-width at caustics (default half a wavelength at the bands' geometric-mean frequency).
+    ``heights``: "absolute" (world z) or "above_ground" (the map product: point (i, j, k) sits at
+    ``origin_z + k * spacing_z`` above the ground under it, terrain included; beams only; field.vti then
+    holds the grid in (x, y, height above ground)).
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -42,7 +51,11 @@ class FieldSpec(BaseModel):
     spacing: Vec3
     shape: tuple[int, int, int]
     frequencies_hz: list[float] = Field(default_factory=lambda: list(OCTAVE_BANDS_HZ), min_length=1, max_length=64)
-    mode: Literal["incoherent", "coherent"] = "incoherent"
+    mode: Literal["incoherent", "coherent", "semicoherent"] = "incoherent"
+    method: Literal["beams", "voxels"] = "beams"
+    heights: Literal["absolute", "above_ground"] = "absolute"
+    chord_m: float | None = Field(default=None, ge=0.05, le=100.0)
+    beam_min_width_m: float | None = Field(default=None, ge=1e-3, le=100.0)
     humidity_percent: float = Field(default=70.0, ge=0.0, le=100.0)
     temperature_c: float = Field(default=15.0, ge=-50.0, le=60.0)
     pressure_kpa: float = Field(default=101.325, gt=0.0, le=200.0)
@@ -71,6 +84,14 @@ class FieldSpec(BaseModel):
                 f"{MAX_FIELD_POINTS:,} per job (split the map into tiles)"
             )
         return value
+
+    @model_validator(mode="after")
+    def _method_modes(self) -> FieldSpec:
+        if self.method == "voxels" and self.mode == "semicoherent":
+            raise ValueError("mode 'semicoherent' needs method 'beams'")
+        if self.method == "voxels" and self.heights == "above_ground":
+            raise ValueError("heights 'above_ground' needs method 'beams'")
+        return self
 
     @field_validator("frequencies_hz")
     @classmethod

@@ -32,6 +32,7 @@ from bentray.engine.errors import BentrayError
 from bentray.scenes.field_models import MAX_COHERENT_FIELD_POINTS, FieldSpec
 from bentray.scenes.library.registry import BUILTIN_SCENES as _REGISTRY
 from bentray.scenes.profile_models import ProfileSpec
+from bentray.scenes.receiver_models import MAX_RECEIVERS, Receiver
 from bentray.scenes.scene_models import BuildingsSpec, MaterialSpec, TerrainSpec, material_reference_errors
 from bentray.scenes.wind_models import WindSpec
 
@@ -430,6 +431,7 @@ class Job(_Model):
     solver: Solver = Field(default_factory=Solver)
     outputs: list[OutputName] = Field(default_factory=lambda: ["rays", "report"], min_length=1)
     field: FieldSpec | None = None
+    receivers: list[Receiver] = Field(default_factory=list, max_length=MAX_RECEIVERS)
 
     @field_validator("name")
     @classmethod
@@ -467,6 +469,53 @@ class Job(_Model):
                         p,
                     )
                 )
+        seen: set[str] = set()
+        for i, rec in enumerate(self.receivers):
+            if rec.id in seen:
+                errors.append((("receivers", i, "id"), f"receiver id {rec.id!r} is used twice", rec.id))
+            seen.add(rec.id)
+            x, y = rec.horizontal
+            inside_xy = domain.min[0] < x < domain.max[0] and domain.min[1] < y < domain.max[1]
+            where = "position" if rec.position is not None else "xy"
+            if not inside_xy:
+                errors.append(
+                    (("receivers", i, where), f"receiver ({x:g}, {y:g}) is not inside the domain's x-y extent", None)
+                )
+            elif rec.position is not None and not (domain.min[2] < rec.position[2] < domain.max[2]):
+                errors.append(
+                    (
+                        ("receivers", i, "position"),
+                        f"receiver z={rec.position[2]:g} m is outside the domain's z range "
+                        f"({domain.min[2]:g}, {domain.max[2]:g}) (at or below the ground, or above the top)",
+                        None,
+                    )
+                )
+        if self.receivers and self.field is not None and self.field.method != "beams":
+            errors.append(
+                (
+                    ("receivers",),
+                    "receiver levels come from beams; field.method 'voxels' cannot give them in the same job",
+                    None,
+                )
+            )
+        if self.receivers and self.solver.curve != "parabolic":
+            errors.append(
+                (
+                    ("receivers",),
+                    f"receiver levels use paraxial beams, built for the parabolic curve, not "
+                    f"solver.curve {self.solver.curve!r}",
+                    None,
+                )
+            )
+        if self.field is not None and self.field.method == "beams" and self.solver.curve != "parabolic":
+            errors.append(
+                (
+                    ("field", "method"),
+                    f"beam fields use paraxial rays, built for the parabolic curve; "
+                    f"solver.curve is {self.solver.curve!r} (use field.method 'voxels' or the parabolic curve)",
+                    None,
+                )
+            )
         n_rays = self.n_rays
         if n_rays > MAX_TOTAL_RAYS:
             errors.append(

@@ -14,6 +14,7 @@ Environment variables (all optional):
 | ``BENTRAY_MAX_JOB_SECONDS`` | 3600 | run time of one attempt; longer -> failed |
 | ``BENTRAY_RETENTION_DAYS`` | 7 | finished jobs and assets older than this are deleted |
 | ``BENTRAY_WORKERS`` | 1 | concurrent job processes started by ``bentray serve`` (0: API only) |
+| ``BENTRAY_DASK_SCHEDULER`` | none | Dask scheduler (``tcp://host:8786``) for the ray batches (none: in-process) |
 
 No key configured means a single local user: the server then refuses to bind anything but a
 loopback address (see :func:`check_bind_host`).
@@ -58,6 +59,8 @@ class Settings(BaseModel):
     max_job_seconds: float = Field(default=3600.0, gt=0)
     retention_days: float = Field(default=7.0, gt=0)
     workers: int = Field(default=1, ge=0, le=256)
+    # Dask scheduler address for the ray batches of every job (None: the job process runs them itself).
+    dask_scheduler: str | None = None
     # A job whose worker died (or whose server stopped) runs again once; after that it fails.
     max_attempts: int = Field(default=2, ge=1, le=10)
     # Job processes run at this niceness so that the API keeps answering while they hold the CPU.
@@ -111,6 +114,7 @@ class Settings(BaseModel):
             "BENTRAY_MAX_JOB_SECONDS": "max_job_seconds",
             "BENTRAY_RETENTION_DAYS": "retention_days",
             "BENTRAY_WORKERS": "workers",
+            "BENTRAY_DASK_SCHEDULER": "dask_scheduler",
         }
         for var, field in names.items():
             raw = env.get(var, "").strip()

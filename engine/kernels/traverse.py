@@ -74,7 +74,7 @@ from bentray.engine.constants import (
     STATUS_TIME_LIMIT,
     TINY_STEP_REL,
 )
-from bentray.engine.kernels import curves, field
+from bentray.engine.kernels import beams, curves, field, paraxial
 from bentray.engine.wind import WIND_NONE, effective_quantity
 
 
@@ -97,6 +97,10 @@ class RayParams(NamedTuple):
     dt_sample: float
 
 
+# final paraxial state written per ray when asked (Rays.out_par): X_el, X_az, P_el, P_az, |p|
+PAR_OUT_SIZE = paraxial.PAR_SIZE + 1
+
+
 class PathBuffers(NamedTuple):
     """Path sample buffers: ray i owns rows [i * cap, (i + 1) * cap) of pts (m, (N, 3)), t (s), s (m)."""
 
@@ -112,7 +116,8 @@ class Rays(NamedTuple):
     origins, directions : (n, 3) m / any length; start_cells : (n,) int64 (-1: not in the mesh -> lost);
     f_weights : (n, n_f) band powers (n_f may be 0 without field); refl_cos, refl_mat : (n, R) first R
     reflections' incidence cosine and face material (written); out_state : (n, STATE_SIZE) float64,
-    out_counts : (n, COUNT_SIZE) int64 (written; columns constants.STATE_* / COUNT_*).
+    out_counts : (n, COUNT_SIZE) int64 (written; columns constants.STATE_* / COUNT_*);
+    out_par : (n, PAR_OUT_SIZE) final paraxial state (written), or (0, PAR_OUT_SIZE): not asked for.
     """
 
     origins: np.ndarray
@@ -123,6 +128,7 @@ class Rays(NamedTuple):
     refl_mat: np.ndarray
     out_state: np.ndarray
     out_counts: np.ndarray
+    out_par: np.ndarray
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -296,7 +302,35 @@ def _emit_segment(
 
 
 @nb.njit(**NJIT_FLAGS)
-def trace_one(mesh, prm, fld, paths, rays, i, acc):
+def _p_at(cs, sigma, p_out):
+    """Slowness vector p(sigma) = p0 + g sigma / 2 of the parabolic segment into p_out; returns |p| = n."""
+    nn = 0.0
+    for i in range(3):
+        p_out[i] = cs[i] + 0.5 * cs[3 + i] * sigma
+        nn += p_out[i] * p_out[i]
+    return math.sqrt(nn)
+
+
+@nb.njit(**NJIT_FLAGS)
+def _beam_segment(beam, slot, bray, curve, cs, x, d, param, t, s, ds, c_ref, par, par_tmp, p_tmp, n_refl, refl_cos,
+                  refl_mat, launch_cos, xs, ts):  # fmt: skip
+    """Beam samples inside a segment longer than the chord length (on the curve, uniform in sigma)."""
+    chord = beam.tabs.chord_m
+    if ds <= chord:
+        return
+    n_int = int(ds / chord)
+    for j in range(1, n_int + 1):
+        prm = param * j / (n_int + 1)
+        dsj = curves.evaluate(curve, cs, x, d, prm, xs, ts)
+        tj = t + curves.time_at(curve, cs, prm, c_ref)
+        paraxial.advanced_copy(par, prm, par_tmp)
+        nj = _p_at(cs, prm, p_tmp)
+        beams.ray_sample(beam, slot, bray, xs, ts, tj, s + dsj, nj / c_ref, par_tmp, n_refl, refl_cos, refl_mat,
+                         launch_cos, False)  # fmt: skip
+
+
+@nb.njit(**NJIT_FLAGS)
+def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
     """Trace ray i (rays.origins[i], rays.directions[i] from rays.start_cells[i]) to its end state.
 
     mesh : CellMesh; prm : RayParams; fld : field.FieldAcc (mode FIELD_OFF: no accumulation), written in
@@ -304,7 +338,8 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc):
     out_state, out_counts, refl_cos, refl_mat). With wind, each cell's curve is set up from the effective
     medium c + u.e: its value at the entry point x, its gradient at the middle of the straight chord from
     x along d through the cell (exact analytic derivatives there); e = the unit horizontal part of the
-    launch direction, fixed for the whole path.
+    launch direction, fixed for the whole path. beam : beams.Beam (beam field and receiver points; the
+    paraxial state of docs/physics.md §10 is carried when beams are on or rays.out_par is asked for).
     """
     planes = mesh.planes
     neighbours = mesh.neighbours
@@ -328,6 +363,7 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc):
     path_s = paths.s
     path_cap = paths.cap
     path_base = i * path_cap
+    i_ray = i  # (the name i is reused by the small loops below)
     x_start = rays.origins[i]
     d_start = rays.directions[i]
     cell_start = rays.start_cells[i]
@@ -366,6 +402,30 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc):
     t = 0.0
     s = 0.0
     cell = cell_start
+    # paraxial state and beam samples (docs/physics.md §10-11; parabolic curve)
+    want_par = rays.out_par.shape[0] > 0
+    deposit_on = beam.grid.mode != beams.BEAM_OFF or beam.pts.xyz.shape[0] > 0
+    par_on = (deposit_on or want_par) and cell_start >= 0
+    par = np.zeros(paraxial.PAR_SIZE)
+    par_tmp = np.zeros(paraxial.PAR_SIZE)
+    p_end = np.zeros(3)
+    bray = beams.new_ray(beam.grid.omega.shape[0])
+    launch_cos = math.sqrt(d[0] * d[0] + d[1] * d[1])
+    p_norm = 1.0
+    if par_on:
+        m_start = _media_at(media_ref, ref_point, gradient, cell, x)
+        if wind_on:
+            m_start = effective_quantity(curve, c_ref, m_start, gradient[cell], ray_wind, wind_params, x, e_wind,
+                                         w_grad, g_eff)  # fmt: skip
+        if m_start > 0.0:
+            p_norm = math.sqrt(m_start)
+            paraxial.launch(par, d, p_norm)
+            if deposit_on:
+                beams.ray_sample(beam, acc, bray, x, d, 0.0, 0.0, p_norm / c_ref, par, 0, refl_cos, refl_mat,
+                                 launch_cos, True)  # fmt: skip
+        else:
+            par_on = False
+    deposit_on = deposit_on and par_on
     entry = -1
     reflections = 0
     crossings = 0
@@ -436,6 +496,10 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc):
         if not curves.setup(curve, m0, g, d, cs):
             status = STATUS_LOST
             break
+        if par_on:  # the segment restarts from this cell's model at x: p' = n'(x) d (docs/physics.md §10)
+            n_new = math.sqrt(m0)
+            paraxial.restart(par, d, p_norm, n_new, g)
+            p_norm = n_new
         cell_size = size[cell]
         face, param = curves.find_exit(
             curve, cs, x, d, planes[cell], neighbours[cell], exclude, ON_FACE_REL * cell_size, cell_size
@@ -470,6 +534,15 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc):
         if t + dt >= max_time:
             param_end = curves.param_at_time(curve, cs, max_time - t, param, c_ref)
             ds = curves.evaluate(curve, cs, x, d, param_end, xn, dn)
+            if par_on:  # HOOK (a), paraxial: the last segment, to max_time
+                if deposit_on:
+                    _beam_segment(beam, acc, bray, curve, cs, x, d, param_end, t, s, ds, c_ref, par, par_tmp, p_end,
+                                  reflections, refl_cos, refl_mat, launch_cos, xs, ts)  # fmt: skip
+                paraxial.advance(par, param_end)
+                p_norm = _p_at(cs, param_end, p_end)
+                if deposit_on:
+                    beams.ray_sample(beam, acc, bray, xn, dn, max_time, s + ds, p_norm / c_ref, par, reflections,
+                                     refl_cos, refl_mat, launch_cos, False)  # fmt: skip
             if f_on:
                 field.deposit_segment(
                     fld,
@@ -519,6 +592,17 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc):
             zero_run = 0
         elif param != 0.0:
             zero_run += 1
+        if par_on:  # HOOK (a), paraxial: samples inside the segment, derivatives at its end (on its face)
+            if deposit_on:
+                _beam_segment(beam, acc, bray, curve, cs, x, d, param, t, s, ds, c_ref, par, par_tmp, p_end,
+                              reflections, refl_cos, refl_mat, launch_cos, xs, ts)  # fmt: skip
+            paraxial.advance(par, param)
+            p_norm = _p_at(cs, param, p_end)
+            if face >= 0:
+                paraxial.onto_face(par, planes[cell, face], p_end, g)
+                if deposit_on and (neighbours[cell, face] < 0 or s + ds - bray.last[beams.S_ARC] >= beam.tabs.chord_m):
+                    beams.ray_sample(beam, acc, bray, xn, dn, t + dt, s + ds, p_norm / c_ref, par, reflections,
+                                     refl_cos, refl_mat, launch_cos, False)  # fmt: skip
         if f_on:
             field.deposit_segment(
                 fld, rf, reflections, curve, c_ref, cs, x, d, xn, m0, g, field.Segment(param, t, s, dt, ds)
@@ -628,6 +712,11 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc):
                 d[i] /= norm
             reflections += 1
             entry = face  # HOOK (c): specular reflection done (d reflected)
+            if par_on:
+                paraxial.reflect(par, planes[cell, face])
+                if deposit_on:
+                    beams.ray_sample(beam, acc, bray, x, d, t, s, p_norm / c_ref, par, reflections, refl_cos,
+                                     refl_mat, launch_cos, True)  # fmt: skip
             if record and t > t_last:
                 count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
                 t_last = t
@@ -650,6 +739,14 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc):
         )
     if record and (count == 0 or t > t_last):
         count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
+    if deposit_on and s > bray.last[beams.S_ARC]:  # HOOK (d), paraxial: the last chord
+        beams.ray_sample(beam, acc, bray, x, d, t, s, p_norm / c_ref, par, reflections, refl_cos, refl_mat,
+                         launch_cos, False)  # fmt: skip
+    if want_par:
+        out_par = rays.out_par[i_ray]
+        for k in range(paraxial.PAR_SIZE):
+            out_par[k] = par[k]
+        out_par[paraxial.PAR_SIZE] = p_norm if par_on else math.nan
     for k in range(3):
         out_state[STATE_X + k] = x[k]
         out_state[STATE_D + k] = d[k]
@@ -664,14 +761,16 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc):
 
 
 @nb.njit(**PARALLEL_FLAGS)
-def trace_rays(mesh, prm, fld, paths, rays, n_slots):
+def trace_rays(mesh, prm, fld, paths, rays, n_slots, b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts):
     """Trace all rays in parallel (prange over ``n_slots`` accumulator slots, rays interleaved).
 
     Ray i owns row i of every ``rays`` array and the path slice ``[i * paths.cap, (i + 1) * paths.cap)``;
     field accumulator slot ``i % n_slots`` is only written by the one thread running that slot. For a
-    fixed n_slots the results are deterministic.
+    fixed n_slots the results are deterministic. b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts : the beam
+    field and the receiver points (beams.Beam; BEAM_OFF in b_grid.mode and no points: none; passed apart
+    because a parallel kernel does not take nested structs).
     """
     n = rays.origins.shape[0]
     for slot in nb.prange(n_slots):
         for i in range(slot, n, n_slots):
-            trace_one(mesh, prm, fld, paths, rays, i, slot)
+            trace_one(mesh, prm, fld, paths, rays, i, slot, beams.Beam(b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts))
