@@ -21,16 +21,16 @@ __version__ = "0.1.0"
 
 
 def _engine_source_key() -> str:
-    """Short hash of the engine source files that hold or configure compiled code (those that mention
-    numba; about 1 ms): the numba cache folder's name. Plain-Python modules (bench, I/O) do not count, so
-    editing them does not recompile the kernels."""
+    """Short hash of the engine source files that hold compiled code (those that mention njit; about
+    1 ms): the numba cache folder's name. Plain-Python modules (orchestration, bench, I/O, even those that
+    call numba.get_num_threads) do not count, so editing them does not recompile the kernels."""
     engine = Path(__file__).resolve().parent.parent / "engine"
     if not engine.is_dir():  # installed layout: bentray/engine
         engine = Path(__file__).resolve().parent / "engine"
     digest = hashlib.sha1(__version__.encode())
     for path in sorted(engine.rglob("*.py")):
         text = path.read_bytes()
-        if b"numba" in text or b"njit" in text:
+        if b"njit" in text.lower():
             digest.update(str(path.relative_to(engine)).encode())
             digest.update(text)
     return digest.hexdigest()[:12]

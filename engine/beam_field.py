@@ -150,6 +150,7 @@ class BeamBuffers:
         self.n_slots = int(n_slots)
         self.collapsed: BeamCollapsed | None = None
         self.receivers: ReceiverLevels | None = None
+        self.settings: FieldSpec | None = None  # bands and absorption (the field spec, or receiver_settings)
         s = self.n_slots
         self.acc = _new_acc(bgrid, grid.n_points, s) if grid is not None else _empty_acc()
         n_p = self.points.xyz.shape[0]
@@ -164,7 +165,7 @@ class BeamBuffers:
 
     def like(self, weights: np.ndarray, n_slots: int | None = None) -> BeamBuffers:
         """Fresh accumulators for another batch (slots: n_slots, else this one's, else the thread count)."""
-        return BeamBuffers(
+        out = BeamBuffers(
             self.mode,
             self.grid,
             self.bgrid,
@@ -174,6 +175,8 @@ class BeamBuffers:
             self.pgrid,
             self.points,
         )
+        out.settings = self.settings
+        return out
 
     def collapse(self, ray_offset: int = 0) -> BeamBuffers:
         """Sum the slots in order, normalise each group and combine the groups (see the module docstring)."""
@@ -360,6 +363,7 @@ def prepare(
     n_face_materials: int,
     ground_z: np.ndarray | None = None,
     receivers_xyz: np.ndarray | None = None,
+    receiver_bands: list[float] | None = None,
 ) -> BeamBuffers:
     """The beam accumulator template of a job (no slots: each batch allocates its own).
 
@@ -372,7 +376,7 @@ def prepare(
     """
     if n_face_materials > len(materials):
         raise ValueError(f"the mesh's faces use {n_face_materials} materials but the ground table has {len(materials)}")
-    settings = spec if spec is not None else receiver_settings()
+    settings = spec if spec is not None else receiver_settings(receiver_bands)
     grid = (
         FieldGrid(np.asarray(spec.origin, float), np.asarray(spec.spacing, float), tuple(spec.shape))
         if spec is not None
@@ -408,12 +412,14 @@ def prepare(
     return BeamBuffers(settings.mode, grid, bgrid, tables, weights, 0, bgrid._replace(mode=BEAM_SEMICOHERENT), points)
 
 
-def receiver_settings() -> FieldSpec:
+def receiver_settings(frequencies_hz: list[float] | None = None) -> FieldSpec:
     """Band and absorption settings of receivers in a job without a field: the FieldSpec defaults
-    (octave bands 63 Hz - 8 kHz, ISO 9613-1 at 15 C, 70 %, 101.325 kPa)."""
+    (octave bands 63 Hz - 8 kHz, or the bands the sources give powers for; ISO 9613-1 at 15 C, 70 %,
+    101.325 kPa)."""
     from bentray.scenes.field_models import FieldSpec
 
-    return FieldSpec(origin=(0.0, 0.0, 0.0), spacing=(1.0, 1.0, 1.0), shape=(1, 1, 1), mode="semicoherent")
+    extra = {"frequencies_hz": sorted(frequencies_hz)} if frequencies_hz else {}
+    return FieldSpec(origin=(0.0, 0.0, 0.0), spacing=(1.0, 1.0, 1.0), shape=(1, 1, 1), mode="semicoherent", **extra)
 
 
 @dataclass
@@ -428,7 +434,7 @@ class ReceiverTable:
 def finalize_receivers(spec: FieldSpec | None, buffers: BeamBuffers, ids: list[str], xyz: np.ndarray) -> ReceiverTable:
     """Per receiver: coherent and incoherent TL per band (dB re 1 m free field), SPL per band and
     A-weighted when the sources have powers, the beam weight and contributions (0: no beam reached it)."""
-    settings = spec if spec is not None else receiver_settings()
+    settings = spec if spec is not None else (buffers.settings or receiver_settings())
     rec = buffers.receivers
     if rec is None:
         raise ValueError("finalize_receivers() needs the collapsed receiver levels")

@@ -340,7 +340,10 @@ def stage_field_setup(
         lo = job.scene.box.min
         ground_point = np.array([[job.sources[0].position[0], job.sources[0].position[1], lo[2]]])
         powers = None
-        labels = spec.labels if spec is not None else beam_field.receiver_settings().labels
+        receiver_bands = None
+        if spec is None and job.sources[0].power_db is not None:
+            receiver_bands = sorted(float(b) for b in job.sources[0].power_db)
+        labels = spec.labels if spec is not None else beam_field.receiver_settings(receiver_bands).labels
         if job.sources[0].power_db is not None:
             powers = np.array(
                 [[field_stage.W_REF * 10.0 ** (src.power_db[b] / 10.0) for b in labels] for src in job.sources]
@@ -361,6 +364,7 @@ def stage_field_setup(
                 n_face_materials=int(mesh.face_material.max()) + 1 if mesh.face_material.size else 1,
                 ground_z=_grid_ground_z(job, surfaces) if spec is not None and spec.heights == "above_ground" else None,
                 receivers_xyz=receivers_xyz,
+                receiver_bands=receiver_bands,
             )
             return FieldSetup(mesh, beam_template, powers, materials, receivers_xyz)
         buffers = field_stage.prepare(

@@ -578,11 +578,13 @@ class Job(_Model):
                     )
                 )
         for key, rng in (("elevation_deg", self.rays.elevation_deg), ("azimuth_deg", self.rays.azimuth_deg)):
-            if rng.count < 2:
+            # beams take a one-azimuth (vertical) fan; elevation always needs a step, voxels both
+            if rng.count < 2 and (spec.method == "voxels" or key == "elevation_deg"):
                 errors.append(
                     (
                         ("rays", key, "count"),
-                        "a field needs a 3D fan (count >= 2): each ray carries the power of its launch solid angle",
+                        "a voxel field needs a 3D fan (count >= 2): each ray carries the power of its launch solid "
+                        "angle; beams need at least 2 elevations",
                         rng.count,
                     )
                 )

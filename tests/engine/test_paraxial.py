@@ -6,7 +6,10 @@ elevation and in azimuth, on both sides, and differentiates the final states. Ra
 of the domain (a long time limit), so both sides are compared on the same face plane: the kernel's
 derivatives there are the "on the face" ones (docs/physics.md §10). A perturbed ray may pass an edge
 on the other side (a kink of the piecewise map): such rays (a different number of cell crossings or
-reflections) are left out, and the test asserts that most rays are compared.
+reflections) are left out, and the test asserts that most rays are compared. Differences are
+Richardson-extrapolated (steps 1e-6 and 5e-7 rad) and relative to |X_k|, or near a caustic (|X_k| small,
+the map strongly curved) to 1 % of the ray's length (an unfocused tube's |X_k|). Measured: worst
+2e-7 (slabs), 1e-8 (tets), 2e-6 before this scale on the terrain's near-caustic ray.
 """
 
 from __future__ import annotations
@@ -64,13 +67,17 @@ def _directions(el: np.ndarray, az: np.ndarray) -> np.ndarray:
 
 
 def _compare(job: Job, src: np.ndarray, el_deg: np.ndarray, az_deg: np.ndarray, tol: float = TOL) -> dict:
+    """Worst relative difference between the carried derivatives and Richardson-extrapolated central
+    differences (steps H and H/2: truncation O(H^4); a plain central difference is O(H^2) and near a
+    caustic, where |X_el| is small and the map curves strongly, that is 1e-4 relative at H = 1e-6)."""
     media, profile, wind = _media(job)
     el0 = np.radians(el_deg)
     az0 = np.radians(az_deg)
     n = el0.size
-    # central ray, then +-H in elevation, then +-H in azimuth
-    els = np.concatenate([el0, el0 + H, el0 - H, el0, el0])
-    azs = np.concatenate([az0, az0, az0, az0 + H, az0 - H])
+    # central ray, then +-H and +-H/2 in elevation, then the same in azimuth
+    steps = [H, -H, H / 2, -H / 2]
+    els = np.concatenate([el0] + [el0 + h for h in steps] + [el0] * 4)
+    azs = np.concatenate([az0] + [az0] * 4 + [az0 + h for h in steps])
     dirs = _directions(els, azs)
     origins = np.repeat(src[None], dirs.shape[0], axis=0)
     cells = media.locate(src[None])
@@ -90,22 +97,27 @@ def _compare(job: Job, src: np.ndarray, el_deg: np.ndarray, az_deg: np.ndarray, 
     par = res.paraxial
     assert par is not None
     p_vec = res.direction * par[:, 12:13]
-    blocks = [slice(k * n, (k + 1) * n) for k in range(5)]
-    same = np.ones(n, bool)
+    blocks = [slice(k * n, (k + 1) * n) for k in range(9)]
+    same = res.status[blocks[0]] == STATUS_EXITED
     for b in blocks[1:]:
         same &= (res.crossings[b] == res.crossings[blocks[0]]) & (res.reflections[b] == res.reflections[blocks[0]])
         same &= res.status[b] == STATUS_EXITED
-    same &= res.status[blocks[0]] == STATUS_EXITED
     worst = 0.0
-    for k, (plus, minus) in enumerate([(blocks[1], blocks[2]), (blocks[3], blocks[4])]):
-        fd_x = (res.position[plus] - res.position[minus]) / (2 * H)
-        fd_p = (p_vec[plus] - p_vec[minus]) / (2 * H)
+
+    def richardson(values: np.ndarray, first: int) -> np.ndarray:
+        d_h = (values[blocks[first]] - values[blocks[first + 1]]) / (2 * H)
+        d_h2 = (values[blocks[first + 2]] - values[blocks[first + 3]]) / H
+        return (4.0 * d_h2 - d_h) / 3.0
+
+    for k, first in enumerate((1, 5)):
+        fd_x = richardson(res.position, first)
+        fd_p = richardson(p_vec, first)
         x_k = par[blocks[0], 3 * k : 3 * k + 3]
         p_k = par[blocks[0], 6 + 3 * k : 9 + 3 * k]
-        scale_x = np.linalg.norm(x_k, axis=1)
-        scale_p = np.linalg.norm(p_k, axis=1) + 1e-3
+        # relative to |X_k|, but near a caustic (|X_k| -> 0) to 1 % of an unfocused tube's |X_k| ~ length
+        scale_x = np.maximum(np.linalg.norm(x_k, axis=1), 1e-2 * res.length_m[blocks[0]])
         err_x = np.linalg.norm(fd_x - x_k, axis=1) / scale_x
-        err_p = np.linalg.norm(fd_p - p_k, axis=1) / scale_p
+        err_p = np.linalg.norm(fd_p - p_k, axis=1) / np.maximum(np.linalg.norm(p_k, axis=1), 1e-2)
         worst = max(worst, float(np.max(err_x[same], initial=0.0)), float(np.max(err_p[same], initial=0.0)))
     return {
         "compared": int(same.sum()),
@@ -164,6 +176,8 @@ def test_paraxial_matches_central_differences_over_terrain():
 
     surfaces = load_surfaces(job)
     src[2] = float(terrain_height_function(surfaces.terrain, lo, hi)(src[None, :2])[0]) + 3.0
-    out = _compare(job, src, FAN_EL, FAN_AZ)
+    # azimuths off the terrain grid's lines: a ray along a triangle edge reflects off two different facets
+    # on either side (a jump of the faceted terrain, not of the derivatives)
+    out = _compare(job, src, FAN_EL, FAN_AZ + 0.37)
     assert out["compared"] >= 4, out
     assert out["worst_rel"] < TOL, out
