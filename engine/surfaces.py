@@ -60,7 +60,8 @@ class Footprint:
     polygon : (k, 2) float64 x, y of a simple polygon, counter-clockwise, not closed (first != last).
     height_m : height of the roof above ``base_z``; base_z : ground level of the footprint in metres
     (None: the lowest terrain height under the polygon). material : index of the walls and roof.
-    name : for error messages and reports.
+    name : for error messages and reports. holes : courtyards, each (h, 2) float64 clockwise, not closed,
+    strictly inside the polygon and pairwise disjoint (air columns open to the sky).
     """
 
     polygon: np.ndarray
@@ -68,6 +69,7 @@ class Footprint:
     base_z: float | None = None
     material: int = 0
     name: str = ""
+    holes: list[np.ndarray] = field(default_factory=list)
 
 
 @dataclass

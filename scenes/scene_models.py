@@ -20,16 +20,16 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from bentray.engine.errors import JobInputError
 from bentray.engine.surfaces import Footprint, HeightGrid, Material, SceneSurfaces, TriangleSurface
-from bentray.scenes.geometry import (
-    box_pairs,
-    normalise_polygon,
+from bentray.scenes.geometry import box_pairs, terrain_height_at, terrain_xy_bounds
+from bentray.scenes.gis_geometry import (
+    footprint_from_polygon,
+    footprint_polygon,
+    overlapping_pairs,
     points_in_polygon,
-    polygon_problem,
-    polygons_overlap,
-    terrain_height_at,
-    terrain_xy_bounds,
+    polygon_from_rings,
 )
 from bentray.scenes.terrain_io import (
+    DEFAULT_STOREY_HEIGHT_M,
     MAX_BUILDING_HEIGHT_M,
     MAX_FOOTPRINTS,
     MAX_POLYGON_VERTICES,
@@ -124,22 +124,30 @@ class TerrainSpec(_Model):
 
 
 class FootprintSpec(_Model):
-    """An inline building or barrier: a simple polygon [[x, y], ...] (either orientation, closing vertex
-    optional), ``height_m`` above ``base_z`` (default: the lowest terrain under the polygon)."""
+    """An inline building or barrier: a polygon [[x, y], ...] (either orientation, closing vertex optional)
+    with optional ``holes`` (courtyards, same form), ``height_m`` above ``base_z`` (default: the lowest
+    terrain under the polygon) or ``levels`` storeys of ``scene.buildings.storey_height_m``."""
 
     polygon: list[tuple[float, float]] = Field(min_length=3, max_length=MAX_POLYGON_VERTICES)
-    height_m: float = Field(gt=0, lt=MAX_BUILDING_HEIGHT_M)
+    holes: list[list[tuple[float, float]]] = Field(default_factory=list, max_length=1000)
+    height_m: float | None = Field(default=None, gt=0, lt=MAX_BUILDING_HEIGHT_M)
+    levels: float | None = Field(default=None, gt=0, le=300)
     base_z: float | None = None
     material: str | None = None
     name: str | None = Field(default=None, max_length=100)
 
-    @field_validator("polygon")
-    @classmethod
-    def _simple(cls, value: list[tuple[float, float]]) -> list[tuple[float, float]]:
-        problem = polygon_problem(normalise_polygon(np.array(value, dtype=np.float64)))
+    @model_validator(mode="after")
+    def _valid(self) -> FootprintSpec:
+        if (self.height_m is None) == (self.levels is None):
+            raise ValueError("give exactly one of height_m (metres) and levels (storeys)")
+        _, problem = polygon_from_rings(self.polygon, self.holes)
         if problem:
             raise ValueError(problem)
-        return value
+        return self
+
+    def height(self, storey_height_m: float) -> float:
+        """Roof height above the base in metres (``height_m``, or ``levels`` x storey_height_m)."""
+        return float(self.height_m) if self.height_m is not None else float(self.levels or 0) * storey_height_m
 
 
 class ObstacleSpec(_Model):
@@ -157,6 +165,8 @@ class BuildingsSpec(_Model):
     file: str | None = Field(default=None, min_length=1)
     footprints: list[FootprintSpec] = Field(default_factory=list, max_length=MAX_FOOTPRINTS)
     obstacles: list[ObstacleSpec] = Field(default_factory=list, max_length=1000)
+    # metres per storey for `levels` / GeoJSON `building:levels`
+    storey_height_m: float = Field(default=DEFAULT_STOREY_HEIGHT_M, gt=0, le=20)
 
     @field_validator("file")
     @classmethod
@@ -169,6 +179,12 @@ class BuildingsSpec(_Model):
     def _something(self) -> BuildingsSpec:
         if self.file is None and not self.footprints and not self.obstacles:
             raise ValueError("give a GeoJSON file, footprints or obstacles (or leave buildings out)")
+        for i, fp in enumerate(self.footprints):
+            if not fp.height(self.storey_height_m) < MAX_BUILDING_HEIGHT_M:
+                raise ValueError(
+                    f"footprints.{i}: {fp.levels:g} levels x {self.storey_height_m:g} m is not below "
+                    f"{MAX_BUILDING_HEIGHT_M:g} m"
+                )
         return self
 
 
@@ -225,7 +241,8 @@ def footprint_bases(
             i0, i1 = int(np.searchsorted(terrain.y, lo[n, 1])), int(np.searchsorted(terrain.y, hi[n, 1], "right"))
             gx, gy = np.meshgrid(terrain.x[j0:j1], terrain.y[i0:i1])
             nodes = np.column_stack([gx.ravel(), gy.ravel()])
-            inside_z.append(terrain.z[i0:i1, j0:j1].ravel()[points_in_polygon(nodes, footprints[k].polygon)])
+            inside = points_in_polygon(footprint_polygon(footprints[k]), nodes)
+            inside_z.append(terrain.z[i0:i1, j0:j1].ravel()[inside])
     else:
         e = terrain.vertices[terrain.triangles][:, :, :2]
         step = 0.5 * float(np.median(np.linalg.norm(np.roll(e, -1, axis=1) - e, axis=2)))
@@ -233,14 +250,15 @@ def footprint_bases(
         iv, ifp = box_pairs(xy, xy, lo, hi)
         for n, k in enumerate(todo):
             v = iv[ifp == n]
-            inside_z.append(terrain.vertices[v[points_in_polygon(xy[v], footprints[k].polygon)], 2])
+            inside_z.append(terrain.vertices[v[points_in_polygon(footprint_polygon(footprints[k]), xy[v])], 2])
     for n, k in enumerate(todo):
-        poly = footprints[k].polygon
-        a, b = poly, np.roll(poly, -1, axis=0)
-        samples = [a]
-        for m in range(poly.shape[0]):
-            count = max(int(np.ceil(np.linalg.norm(b[m] - a[m]) / step)), 1)
-            samples.append(a[m] + (np.arange(1, count)[:, None] / count) * (b[m] - a[m]))
+        samples = []
+        for poly in [footprints[k].polygon, *footprints[k].holes]:
+            a, b = poly, np.roll(poly, -1, axis=0)
+            samples.append(a)
+            for m in range(poly.shape[0]):
+                count = max(int(np.ceil(np.linalg.norm(b[m] - a[m]) / step)), 1)
+                samples.append(a[m] + (np.arange(1, count)[:, None] / count) * (b[m] - a[m]))
         edge_z = terrain_height_at(terrain, np.concatenate(samples))
         out[k] = min(float(np.min(edge_z)), float(np.min(inside_z[n], initial=np.inf)))
     return out
@@ -306,14 +324,16 @@ def surfaces_from_specs(
         if buildings.file is not None:
             field = f"{prefix}.buildings.file"
             try:
-                read = read_footprints_geojson(_resolve(base_dir, buildings.file), index)
+                read = read_footprints_geojson(_resolve(base_dir, buildings.file), index, buildings.storey_height_m)
             except SceneFileError as exc:
                 raise SceneFileError(f"{field}: {exc}") from None
             labelled += [(f"{field}: {fp.name!r}", fp) for fp in read]
         for i, spec in enumerate(buildings.footprints):
-            fp = Footprint(
-                polygon=normalise_polygon(np.array(spec.polygon, dtype=np.float64)),
-                height_m=spec.height_m,
+            poly, _ = polygon_from_rings(spec.polygon, spec.holes)
+            assert poly is not None  # checked by FootprintSpec
+            fp = footprint_from_polygon(
+                poly,
+                height_m=spec.height(buildings.storey_height_m),
                 base_z=spec.base_z,
                 material=index[spec.material or RIGID],
                 name=spec.name or f"footprint {i}",
@@ -406,11 +426,8 @@ def _footprint_problems(
                 f"{label}: the roof at z = {base + fp.height_m:g} m is not below the domain top (max z = {dmax[2]:g} m)"
             )
     if len(labelled) > 1 and not problems:
-        lo = np.array([fp.polygon.min(axis=0) for _, fp in labelled])
-        hi = np.array([fp.polygon.max(axis=0) for _, fp in labelled])
-        for i, j in zip(*box_pairs(lo, hi), strict=True):
-            if polygons_overlap(labelled[i][1].polygon, labelled[j][1].polygon):
-                problems.append(f"{labelled[i][0]} overlaps {labelled[j][0]}; footprints may touch but not overlap")
+        for i, j in overlapping_pairs([footprint_polygon(fp) for _, fp in labelled]):
+            problems.append(f"{labelled[i][0]} overlaps {labelled[j][0]}; footprints may touch but not overlap")
     return problems
 
 
@@ -473,8 +490,8 @@ def check_points_above_ground(
         near = np.flatnonzero(np.all((p[:, :2] >= lo) & (p[:, :2] <= hi), axis=1))
         if near.size == 0:
             continue
-        tol = 1e-9 * max(float(np.abs(fp.polygon).max()), 1.0)
-        inside = points_in_polygon(p[near, :2], fp.polygon, margin=-tol)
+        tol = 1e-9 * max(float(np.ptp(fp.polygon, axis=0).max()), 1.0)
+        inside = points_in_polygon(footprint_polygon(fp), p[near, :2], margin=-tol)
         roof = base + fp.height_m
         for k in near[inside & (p[near, 2] <= roof)]:
             bad.setdefault(int(k), f"is inside building {fp.name!r} (roof at z = {roof:g} m)")
