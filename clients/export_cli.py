@@ -132,17 +132,13 @@ def _buildings(args: argparse.Namespace) -> Any:
 
     if args.buildings is None:
         return None
-    return read_footprints_geojson(args.buildings, materials=_AnyMaterial())
-
-
-class _AnyMaterial(dict[str, int]):
-    """Material look-up that accepts every name (exports do not need the acoustic materials)."""
-
-    def __contains__(self, key: object) -> bool:
-        return True
-
-    def __getitem__(self, key: str) -> int:
-        return 0
+    # exports need no acoustic materials: accept every material name the file uses
+    try:
+        data = json.loads(Path(args.buildings).read_text(encoding="utf-8"))
+        names = {str(f["properties"]["material"]) for f in data["features"] if "material" in (f["properties"] or {})}
+    except (OSError, ValueError, KeyError, TypeError):
+        names = set()  # the reader reports what is wrong with the file
+    return read_footprints_geojson(args.buildings, materials={"rigid": 0, **dict.fromkeys(names, 0)})
 
 
 def _facades(args: argparse.Namespace, grid: Any, footprints: Any) -> Any:

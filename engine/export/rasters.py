@@ -3,7 +3,7 @@
 Map convention: ``level`` (nx, ny) holds the level at node (i, j) = (x0 + i dx, y0 + j dy) in CRS
 coordinates (the local frame shifted by the frame's origin). Each node is the *centre* of a raster cell:
 row 0 is the northern row (j = ny - 1), so the affine transform is
-``from_origin(x0 - dx / 2, y0 + (ny - 1/2) dy, dx, dy)`` and the ASCII header uses ``xllcenter`` /
+``Affine(dx, 0, x0 - dx / 2, 0, -dy, y0 + (ny - 1/2) dy)`` and the ASCII header uses ``xllcenter`` /
 ``yllcenter``. NaN is written as NODATA (-9999).
 """
 
@@ -36,7 +36,8 @@ def raster_transform(xy0: ArrayLike, dxy: ArrayLike, ny: int) -> Any:
     transform = require("rasterio.transform", "GeoTIFF export")
     x0, y0 = (float(v) for v in np.asarray(xy0, dtype=np.float64).reshape(2))
     dx, dy = (float(v) for v in np.asarray(dxy, dtype=np.float64).reshape(2))
-    return transform.from_origin(x0 - 0.5 * dx, y0 + (ny - 0.5) * dy, dx, dy)
+    # the Affine itself, not from_origin (which multiplies Affines and warns under newer affine releases)
+    return transform.Affine(dx, 0.0, x0 - 0.5 * dx, 0.0, -dy, y0 + (ny - 0.5) * dy)
 
 
 def write_geotiff(
