@@ -30,7 +30,7 @@ from bentray.engine.tracer import trace
 from bentray.engine.wind import sizing_quantity
 from bentray.scenes.library.registry import get_builtin
 from bentray.scenes.profile_models import profile_from_spec
-from bentray.scenes.scene_models import check_points_above_ground, surfaces_from_specs
+from bentray.scenes.scene_models import check_points_above_ground, resolve_source_heights, surfaces_from_specs
 from bentray.scenes.schema import Job
 from bentray.scenes.wind_models import wind_from_spec
 
@@ -68,9 +68,12 @@ def load_surfaces(job: Job, base_dir: Path | None = None) -> SceneSurfaces | Non
         if not scene.has_surfaces:
             return None
         return get_builtin(scene.builtin, scene.resolution).surfaces
-    if scene.terrain is None and scene.buildings is None:
+    if scene.terrain is None and scene.buildings is None and scene.ground_zones is None:
         return None
-    return surfaces_from_specs(scene.terrain, scene.buildings, scene.materials, base_dir, scene.box, prefix="scene")
+    return surfaces_from_specs(
+        scene.terrain, scene.buildings, scene.materials, base_dir, scene.box, prefix="scene",
+        ground_zones=scene.ground_zones,
+    )  # fmt: skip
 
 
 def _describe_surfaces(surfaces: SceneSurfaces) -> str:
@@ -305,6 +308,7 @@ def run_job(
     report_progress("scene", 0.02)
     t0 = time.perf_counter()
     surfaces = load_surfaces(job, base_dir)
+    job = resolve_source_heights(job, surfaces)  # sources given by height above the ground get their z
     timings["scene"] = time.perf_counter() - t0
     stages["scene"] = (
         f"ran: {_describe_surfaces(surfaces)}"

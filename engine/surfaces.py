@@ -73,6 +73,18 @@ class Footprint:
 
 
 @dataclass
+class GroundZone:
+    """A plan-view zone of ground with its own material: polygon (k, 2) counter-clockwise, holes (h, 2)
+    clockwise, rings not closed, metres; material : index into SceneSurfaces.materials. Later zones win
+    where zones overlap; ground faces take the zone under their centroid."""
+
+    polygon: np.ndarray
+    holes: list[np.ndarray] = field(default_factory=list)
+    material: int = 0
+    name: str = ""
+
+
+@dataclass
 class SceneSurfaces:
     """Everything solid in a scene: terrain (or None for flat ground at domain.min z), footprints,
     closed obstacle meshes (vertices (V, 3), faces (F, 3); watertight, outward normals) and the
@@ -83,3 +95,4 @@ class SceneSurfaces:
     obstacles: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     obstacle_materials: list[int] = field(default_factory=list)  # material index per obstacle (empty: rigid)
     materials: list[Material] = field(default_factory=lambda: [Material("rigid", None)])
+    ground_zones: list[GroundZone] = field(default_factory=list)  # ground materials by zone (painted in order)

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Literal, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
@@ -28,6 +28,7 @@ from bentray.scenes.gis_geometry import (
     points_in_polygon,
     polygon_from_rings,
 )
+from bentray.scenes.ground_zones import GroundZonesSpec, ground_zones_from_spec
 from bentray.scenes.terrain_io import (
     DEFAULT_STOREY_HEIGHT_M,
     MAX_BUILDING_HEIGHT_M,
@@ -55,6 +56,7 @@ __all__ = [
     "footprint_base_z",
     "footprint_bases",
     "check_points_above_ground",
+    "resolve_source_heights",
 ]
 
 RIGID = "rigid"  # material 0: acoustically rigid, always defined
@@ -285,14 +287,17 @@ def surfaces_from_specs(
     base_dir: str | Path | None,
     domain: _Box,
     prefix: str = "scene",
+    *,
+    ground_zones: GroundZonesSpec | None = None,
 ) -> SceneSurfaces:
     """Read and check the scene's surface files and inline footprints; return the engine container.
 
     domain : the scene box (``min``, ``max`` in metres). Checks: material names defined and unique;
     terrain covers the domain's xy box, stays inside [min z, max z); every footprint vertex strictly
     inside the xy box, roofs below max z, no two footprints overlapping (touching walls are fine);
-    obstacle vertices strictly inside the box. Raises SceneFileError (unreadable or invalid file) or
-    SceneSpecError, each line starting with the job field (``scene.terrain.file: ...``).
+    obstacle vertices strictly inside the box. ``ground_zones``: zones painted over the ground (their
+    flow resistivities / G values appended to the material table). Raises SceneFileError (unreadable or
+    invalid file) or SceneSpecError, each line starting with the job field (``scene.terrain.file: ...``).
     """
     materials = list(materials or [])
     dmin = np.asarray(domain.min, dtype=np.float64)
@@ -306,6 +311,13 @@ def surfaces_from_specs(
     table = [Material(RIGID, None)] + [Material(m.name, m.flow_resistivity) for m in materials]
     index = {m.name: i for i, m in enumerate(table)}
     surfaces = SceneSurfaces(materials=table)
+    if ground_zones is not None:
+        try:
+            zones, new_materials = ground_zones_from_spec(ground_zones, base_dir, index, len(table))
+        except ValueError as exc:
+            raise SceneSpecError(f"{prefix}.ground_zones: {exc}") from None
+        table += [Material(name, sigma) for name, sigma in new_materials]
+        surfaces.ground_zones = zones
 
     if terrain is not None:
         field = f"{prefix}.terrain.file"
@@ -501,3 +513,28 @@ def check_points_above_ground(
             bad.setdefault(int(k), f"is inside obstacle {i}")
     if bad:
         raise SceneSpecError("\n".join(f"{names[k]}: {_fmt(p[k])} {bad[k]}" for k in sorted(bad)))
+
+
+def resolve_source_heights(job: Any, surfaces: SceneSurfaces | None) -> Any:
+    """The job with every source given as ``position`` [x, y] + ``height_above_ground_m`` turned into an
+    absolute [x, y, ground + h] (ground: the terrain, bilinear / linear in its triangles, or the flat ground
+    at domain min z); other sources unchanged. Returns ``job`` itself when nothing needs resolving.
+    Raises SceneSpecError naming ``sources.<i>.position`` when the terrain does not cover the point."""
+    todo = [i for i, s in enumerate(job.sources) if len(s.position) == 2]
+    if not todo:
+        return job
+    xy = np.array([job.sources[i].position for i in todo], dtype=np.float64)
+    if surfaces is not None and surfaces.terrain is not None:
+        ground = terrain_height_at(surfaces.terrain, xy)
+    else:
+        ground = np.full(len(todo), float(job.scene.box.min[2]))
+    bad = [
+        f"sources.{i}.position: {_fmt(xy[n])} is outside the terrain" for n, i in enumerate(todo) if np.isnan(ground[n])
+    ]
+    if bad:
+        raise SceneSpecError("\n".join(bad))
+    sources = list(job.sources)
+    for n, i in enumerate(todo):
+        z = float(ground[n]) + float(sources[i].height_above_ground_m)
+        sources[i] = sources[i].model_copy(update={"position": (float(xy[n, 0]), float(xy[n, 1]), z)})
+    return job.model_copy(update={"sources": sources})

@@ -399,7 +399,11 @@ def build_terrain_mesh(
                                   np.where(is_top & (top == "reflect"), BOUNDARY_REFLECT, BOUNDARY_OPEN))  # fmt: skip
     face_material = np.zeros((t, 4), dtype=np.int64)
     gi = np.flatnonzero(is_ground)
-    face_material[bc[gi], bf[gi]] = terrain.material(xy[v2[gi]].mean(axis=1))
+    ground_xy = xy[v2[gi]].mean(axis=1)
+    ground_mat = terrain.material(ground_xy)
+    for zone in surfaces.ground_zones:  # later zones win; each face takes the zone under its centroid
+        ground_mat[_in_footprint(ground_xy, np.asarray(zone.polygon, np.float64), zone.holes)] = zone.material
+    face_material[bc[gi], bf[gi]] = ground_mat
     bi = np.flatnonzero(is_bldg)
     fp_mat = np.array([fp.material for fp in surfaces.footprints], dtype=np.int64)
     face_material[bc[bi], bf[bi]] = fp_mat[owner[bi]] if len(bi) else 0

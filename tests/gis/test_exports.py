@@ -41,7 +41,19 @@ def _field(tmp_path):
 
 def test_geotiff_and_ascii_read_back_with_crs_and_transform(tmp_path):
     result, spl_a, _ = _field(tmp_path)
-    args = ["export", str(result), "--format", "geotiff,asc", "--z", "4.4", "--crs", "32632", "--origin", str(X0), str(Y0)]
+    args = [
+        "export",
+        str(result),
+        "--format",
+        "geotiff,asc",
+        "--z",
+        "4.4",
+        "--crs",
+        "32632",
+        "--origin",
+        str(X0),
+        str(Y0),
+    ]
     assert main(args) == 0
     k = 2  # z = 4.4 -> nearest level z = 4
     for name in ("map_spl_a.tif", "map_spl_a.asc"):

@@ -32,7 +32,9 @@ def _rect(x, y, w, h):
 
 
 def test_utm_building_is_accepted_with_its_area(tmp_path):
-    path = _write(tmp_path / "b.geojson", [_feature({"type": "Polygon", "coordinates": [_rect(X0, Y0, 60, 30)]}, height=9)])
+    path = _write(
+        tmp_path / "b.geojson", [_feature({"type": "Polygon", "coordinates": [_rect(X0, Y0, 60, 30)]}, height=9)]
+    )
     (fp,) = read_footprints_geojson(path)
     assert footprint_polygon(fp).area == pytest.approx(1800.0, rel=1e-12)
     # inline too, and through the domain checks of a UTM-placed domain
@@ -85,7 +87,10 @@ def test_holes_multipolygons_and_levels(tmp_path):
             {"type": "MultiPolygon", "coordinates": [[_rect(0, 0, 10, 10)], [_rect(5, 5, 10, 10)]]},
             "MultiPolygon parts 0 and 1 overlap",
         ),
-        ({"type": "Polygon", "coordinates": [[[0, 0], [1e308, 0], [1e308, 1e308], [0, 0]]]}, r"coordinate 1e\+308 m exceeds 1e\+09 m"),
+        (
+            {"type": "Polygon", "coordinates": [[[0, 0], [1e308, 0], [1e308, 1e308], [0, 0]]]},
+            r"coordinate 1e\+308 m exceeds 1e\+09 m",
+        ),
     ],
 )
 def test_geometry_errors(tmp_path, geometry, reason):

@@ -20,7 +20,7 @@ def test_lden_matches_the_directive_formula():
     hand = 10 * math.log10((12 * 10 ** (65 / 10) + 4 * 10 ** ((62 + 5) / 10) + 8 * 10 ** ((57 + 10) / 10)) / 24)
     assert float(lden(ld, le, ln)) == pytest.approx(hand, abs=1e-9)
     # 14 / 2 / 8 hours and custom penalties
-    hand2 = 10 * math.log10((14 * 10 ** 6.5 + 2 * 10 ** ((62 + 3) / 10) + 8 * 10 ** ((57 + 8) / 10)) / 24)
+    hand2 = 10 * math.log10((14 * 10**6.5 + 2 * 10 ** ((62 + 3) / 10) + 8 * 10 ** ((57 + 8) / 10)) / 24)
     assert float(lden(ld, le, ln, hours=(14, 2, 8), penalties_db=(0, 3, 8))) == pytest.approx(hand2, abs=1e-9)
     # arrays broadcast elementwise
     out = lden(np.array([60.0, 65.0]), np.array([55.0, 62.0]), np.array([50.0, 57.0]))

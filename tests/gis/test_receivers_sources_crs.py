@@ -105,5 +105,8 @@ def test_missing_extra_names_it(monkeypatch):
 
     monkeypatch.setattr(builtins, "__import__", fake)
     monkeypatch.delitem(__import__("sys").modules, "rasterio", raising=False)
-    with pytest.raises(gis_deps.GisDependencyError, match=r"GeoTIFF export needs the 'rasterio' package of the 'gis' extra: pip install 'bentray\[gis\]'"):
+    with pytest.raises(
+        gis_deps.GisDependencyError,
+        match=r"GeoTIFF export needs the 'rasterio' package of the 'gis' extra: pip install 'bentray\[gis\]'",
+    ):
         gis_deps.require("rasterio", "GeoTIFF export")
