@@ -44,7 +44,7 @@ def _formats(text: str) -> list[str]:
     return out
 
 
-def add_export(sub: argparse._SubParsersAction) -> None:
+def add_export(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "export",
         help="write GeoTIFF / ASCII grid / isophones / facade levels / exposure from a field result",

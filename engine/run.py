@@ -28,6 +28,7 @@ from bentray.engine.result import JobOutcome, TraceResult, concat_traces
 from bentray.engine.surfaces import SceneSurfaces
 from bentray.engine.tracer import trace
 from bentray.engine.wind import sizing_quantity
+from bentray.scenes.gis_frame import localise_job
 from bentray.scenes.library.registry import get_builtin
 from bentray.scenes.profile_models import profile_from_spec
 from bentray.scenes.scene_models import check_points_above_ground, resolve_source_heights, surfaces_from_specs
@@ -72,7 +73,7 @@ def load_surfaces(job: Job, base_dir: Path | None = None) -> SceneSurfaces | Non
         return None
     return surfaces_from_specs(
         scene.terrain, scene.buildings, scene.materials, base_dir, scene.box, prefix="scene",
-        ground_zones=scene.ground_zones,
+        ground_zones=scene.ground_zones, offset=scene.local_origin if scene.crs is not None else None,
     )  # fmt: skip
 
 
@@ -286,6 +287,7 @@ def run_job(
     Dask when ``BENTRAY_DASK_SCHEDULER`` is set).
     """
     report_progress: ProgressFn = progress or (lambda stage, fraction: None)
+    job, frame = localise_job(job)  # scene.crs: CRS coordinates -> the local frame (identity otherwise)
     timings: dict[str, float] = {}
     stages: dict[str, str] = {}
     solver = job.solver
@@ -472,6 +474,8 @@ def run_job(
         report["rays"]["restarts_total"] = int(restarts.sum())
     if field_arrays is not None:
         report["field"] = field_arrays.stats
+    if frame.crs_wkt is not None:
+        report["georeference"] = frame.as_dict()  # bentray export places the outputs back in the CRS
     report_progress("done", 1.0)
     return JobOutcome(trace=result, mesh_geometry=geometry, report=report, field=field_arrays)
 

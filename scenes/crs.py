@@ -18,7 +18,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from bentray.scenes.gis_deps import require
 
-__all__ = ["LOCAL_ORIGIN_STEP_M", "CrsError", "LocalFrame", "parse_crs", "choose_local_origin"]
+__all__ = ["LOCAL_ORIGIN_STEP_M", "CrsError", "LocalFrame", "parse_crs", "choose_local_origin", "crs_errors"]
 
 # The local origin is the input's lower-left corner rounded down to whole kilometres: local coordinates then
 # lie in [0, extent + 1 km), small enough that float64 keeps ~1e-12 m resolution, and the offset is a round
@@ -50,6 +50,24 @@ def parse_crs(value: int | str) -> Any:
     if units != {"metre"}:
         raise CrsError(f"CRS {crs.name!r} has axis units {sorted(units)}; bentray needs metres")
     return crs
+
+
+def crs_errors(
+    crs: int | str | None, local_origin: tuple[float, float] | None, builtin: str | None
+) -> list[tuple[tuple[str], str]]:
+    """(location in ``scene``, reason) for the Scene validator: a CRS that pyproj does not know or that is not
+    projected in metres, a local_origin without a CRS, a CRS on a builtin (local-metre) scene."""
+    errors: list[tuple[tuple[str], str]] = []
+    if crs is not None:
+        if builtin is not None:
+            errors.append((("crs",), f"builtin scene {builtin!r} is in local metres; remove crs"))
+        try:
+            parse_crs(crs)
+        except CrsError as exc:
+            errors.append((("crs",), str(exc)))
+    elif local_origin is not None:
+        errors.append((("local_origin",), "local_origin only applies with a crs"))
+    return errors
 
 
 def choose_local_origin(xy_min: ArrayLike, step: float = LOCAL_ORIGIN_STEP_M) -> tuple[float, float]:

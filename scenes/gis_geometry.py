@@ -236,4 +236,5 @@ def points_in_polygon(poly: Polygon, xy: np.ndarray, *, margin: float = 0.0) -> 
         return np.asarray(shapely.dwithin(poly, points, -margin), dtype=bool)
     inside = np.asarray(shapely.contains_xy(poly, p[:, 0], p[:, 1]), dtype=bool)
     far = ~np.asarray(shapely.dwithin(poly.boundary, points, margin), dtype=bool)
-    return inside & far
+    out: np.ndarray = inside & far
+    return out

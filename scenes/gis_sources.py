@@ -153,6 +153,7 @@ def read_line_sources_geojson(
         if not isinstance(power, dict) or not all(isinstance(v, int | float) for v in power.values()):
             raise ValueError(f"{label}: power_db_per_m must be an object of band label -> dB re 1 pW/m")
         height = props.get("height_above_ground_m")
+        assert isinstance(geom, dict)
         lines = [geom["coordinates"]] if kind == "LineString" else geom["coordinates"]
         for part, coords in enumerate(lines):
             try:

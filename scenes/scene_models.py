@@ -21,6 +21,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 from bentray.engine.errors import JobInputError
 from bentray.engine.surfaces import Footprint, HeightGrid, Material, SceneSurfaces, TriangleSurface
 from bentray.scenes.geometry import box_pairs, terrain_height_at, terrain_xy_bounds
+from bentray.scenes.gis_frame import shift_footprint, shift_terrain, shift_zone
 from bentray.scenes.gis_geometry import (
     footprint_from_polygon,
     footprint_polygon,
@@ -289,6 +290,7 @@ def surfaces_from_specs(
     prefix: str = "scene",
     *,
     ground_zones: GroundZonesSpec | None = None,
+    offset: tuple[float, float] | None = None,
 ) -> SceneSurfaces:
     """Read and check the scene's surface files and inline footprints; return the engine container.
 
@@ -296,7 +298,9 @@ def surfaces_from_specs(
     terrain covers the domain's xy box, stays inside [min z, max z); every footprint vertex strictly
     inside the xy box, roofs below max z, no two footprints overlapping (touching walls are fine);
     obstacle vertices strictly inside the box. ``ground_zones``: zones painted over the ground (their
-    flow resistivities / G values appended to the material table). Raises SceneFileError (unreadable or
+    flow resistivities / G values appended to the material table). ``offset`` (x0, y0): subtracted from every
+    plan coordinate read (a CRS scene localised by :func:`bentray.scenes.gis_frame.localise_job`; the
+    domain is then already local). Raises SceneFileError (unreadable or
     invalid file) or SceneSpecError, each line starting with the job field (``scene.terrain.file: ...``).
     """
     materials = list(materials or [])
@@ -317,7 +321,7 @@ def surfaces_from_specs(
         except ValueError as exc:
             raise SceneSpecError(f"{prefix}.ground_zones: {exc}") from None
         table += [Material(name, sigma) for name, sigma in new_materials]
-        surfaces.ground_zones = zones
+        surfaces.ground_zones = [shift_zone(z, offset) for z in zones] if offset else zones
 
     if terrain is not None:
         field = f"{prefix}.terrain.file"
@@ -328,6 +332,8 @@ def surfaces_from_specs(
         except SceneFileError as exc:
             raise SceneFileError(f"{field}: {exc}") from None
         grid.default_material = index[terrain.material or RIGID]
+        if offset:
+            shift_terrain(grid, offset)
         errors += [f"{field}: {why}" for why in _terrain_problems(grid, dmin, dmax)]
         surfaces.terrain = grid
 
@@ -339,7 +345,7 @@ def surfaces_from_specs(
                 read = read_footprints_geojson(_resolve(base_dir, buildings.file), index, buildings.storey_height_m)
             except SceneFileError as exc:
                 raise SceneFileError(f"{field}: {exc}") from None
-            labelled += [(f"{field}: {fp.name!r}", fp) for fp in read]
+            labelled += [(f"{field}: {fp.name!r}", shift_footprint(fp, offset) if offset else fp) for fp in read]
         for i, spec in enumerate(buildings.footprints):
             poly, _ = polygon_from_rings(spec.polygon, spec.holes)
             assert poly is not None  # checked by FootprintSpec
@@ -350,6 +356,8 @@ def surfaces_from_specs(
                 material=index[spec.material or RIGID],
                 name=spec.name or f"footprint {i}",
             )
+            if offset:
+                shift_footprint(fp, offset)
             labelled.append((f"{prefix}.buildings.footprints.{i}" + (f" ({spec.name!r})" if spec.name else ""), fp))
         for i, ob in enumerate(buildings.obstacles):
             field = f"{prefix}.buildings.obstacles.{i}.file"
@@ -357,6 +365,8 @@ def surfaces_from_specs(
                 vertices, faces = read_obstacle_mesh(_resolve(base_dir, ob.file), ob.format)
             except SceneFileError as exc:
                 raise SceneFileError(f"{field}: {exc}") from None
+            if offset:
+                vertices = vertices - np.array([offset[0], offset[1], 0.0])
             outside = ~np.all((vertices > dmin) & (vertices < dmax), axis=1)
             if np.any(outside):
                 errors.append(

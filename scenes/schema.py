@@ -29,6 +29,7 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from bentray.engine.errors import BentrayError
+from bentray.scenes.crs import crs_errors
 from bentray.scenes.field_models import MAX_COHERENT_FIELD_POINTS, FieldSpec
 from bentray.scenes.ground_zones import GroundZonesSpec
 from bentray.scenes.library.registry import BUILTIN_SCENES as _REGISTRY
@@ -171,6 +172,10 @@ class Scene(_Model):
     buildings: BuildingsSpec | None = None
     # ground materials by plan-view zone (scenes/ground_zones.py): flow resistivity, CNOSSOS G or a material
     ground_zones: GroundZonesSpec | None = None
+    # projected CRS of every plan coordinate (EPSG code or WKT); the engine works relative to local_origin
+    # (default: the domain's lower-left corner rounded down to 1 km), see scenes/gis_frame.py
+    crs: int | str | None = None
+    local_origin: tuple[float, float] | None = None
     materials: list[MaterialSpec] = Field(default_factory=list, max_length=256)
     # "above_ground": the profile's z is the height above the local ground (terrain, or the domain
     # bottom); "absolute": world z (the paper's c(z); keep domain.min z at 0 for stratified laws)
@@ -194,6 +199,7 @@ class Scene(_Model):
                     errors.append(
                         ((key,), f"builtin scene {self.builtin!r} brings its own {key}; remove one of them", None)
                     )
+        errors.extend((loc, why, None) for loc, why in crs_errors(self.crs, self.local_origin, self.builtin))
         if self.terrain is not None and self.ground.flow_resistivity is not None:
             errors.append(
                 (
