@@ -12,7 +12,8 @@ grid levels. Georeference: ``report.json["georeference"]`` when the job wrote on
 Files (in ``--out``, default RESULT_DIR/export): ``map_<array>.tif``, ``map_<array>.asc`` + ``.prj``,
 ``isophones_<array>.geojson`` (bands), ``isolines_<array>.geojson``, ``facades.geojson`` + ``facades.csv``
 (receivers 2 m in front of every facade of ``--buildings``, per storey), ``exposure.json`` (map area per
-class, buildings per class by their most exposed facade receiver).
+class, buildings per class by their most exposed facade receiver), ``receivers.geojson`` + ``.csv``
+(levels at the Point features of ``--receivers``).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ import numpy as np
 
 __all__ = ["FORMATS", "add_export", "cmd_export"]
 
-FORMATS = ("geotiff", "asc", "isophones", "isolines", "facades", "exposure")
+FORMATS = ("geotiff", "asc", "isophones", "isolines", "facades", "exposure", "receivers")
 
 
 def _levels(text: str) -> list[float]:
@@ -63,6 +64,11 @@ def add_export(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument("--levels", type=_levels, default=None, help="isophone / class levels in dB (default 35..80 step 5)")
     p.add_argument("--buildings", help="GeoJSON footprints (CRS coordinates) for facades and exposure")
     p.add_argument("--facade-spacing", type=float, default=5.0, help="metres between facade receivers (default 5)")
+    p.add_argument(
+        "--receivers",
+        help="GeoJSON Point features (CRS coordinates; z from the third coordinate, else --height above the "
+        "ground) for --format receivers",
+    )
     p.add_argument("--crs", help="CRS of the outputs when report.json has none (EPSG code or WKT)")
     p.add_argument("--origin", type=float, nargs=2, metavar=("X0", "Y0"), help="local origin in the CRS (metres)")
     p.add_argument("--out", help="output directory (default RESULT_DIR/export)")
@@ -89,7 +95,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     levels = check_levels(args.levels if args.levels is not None else DEFAULT_LEVELS_DB)
     out = Path(args.out) if args.out else Path(args.result) / "export"
     out.mkdir(parents=True, exist_ok=True)
-    needs_map = [f for f in args.format if f != "facades"]
+    needs_map = [f for f in args.format if f not in ("facades", "receivers")]
     written: list[Path] = []
     lmap = None
     if needs_map:
@@ -104,11 +110,55 @@ def cmd_export(args: argparse.Namespace) -> int:
     receivers = None
     if footprints is not None:
         receivers = _facades(args, grid, footprints)
+    if "receivers" in args.format:
+        if args.receivers is None:
+            raise CommandError("--format receivers needs --receivers FILE.geojson")
+        written += _write_receivers(args, grid, out)
     for fmt in args.format:
-        written += _write(fmt, args, grid, lmap, levels, out, footprints, receivers)
+        if fmt != "receivers":
+            written += _write(fmt, args, grid, lmap, levels, out, footprints, receivers)
     for path in written:
         print(path)
     return 0
+
+
+def _write_receivers(args: argparse.Namespace, grid: Any, out: Path) -> list[Path]:
+    """Levels at the points of a GeoJSON file -> receivers.geojson and receivers.csv."""
+    from bentray.clients.cli import CommandError
+    from bentray.engine.export import facades, geojson
+
+    try:
+        data = json.loads(Path(args.receivers).read_text(encoding="utf-8"))
+        features = data["features"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise CommandError(f"--receivers {args.receivers}: not a readable GeoJSON FeatureCollection ({exc})") from None
+    pts, ids = [], []
+    for i, f in enumerate(features):
+        geom = f.get("geometry") if isinstance(f, dict) else None
+        c = geom.get("coordinates") if isinstance(geom, dict) and geom.get("type") == "Point" else None
+        if not isinstance(c, list) or len(c) not in (2, 3) or not all(isinstance(v, int | float) for v in c):
+            raise CommandError(f"--receivers {args.receivers}: features.{i}: expected a Point [x, y] or [x, y, z]")
+        if len(c) == 2 and args.height is None:
+            raise CommandError(f"--receivers: features.{i} has no z: give --height (above the ground) for 2D points")
+        pts.append([float(v) for v in c] if len(c) == 3 else [float(c[0]), float(c[1]), np.nan])
+        props = f.get("properties") or {}
+        ids.append(str(props.get("id", props.get("name", f"features.{i}"))))
+    p = np.array(pts, dtype=np.float64).reshape(-1, 3)
+    flat = np.isnan(p[:, 2])
+    if np.any(flat):
+        ground = _ground_fn(args)
+        if ground is None:
+            raise CommandError("--height needs the ground: --ground-z or --terrain")
+        gz = np.asarray(ground(p[flat, :2]), dtype=np.float64) if callable(ground) else float(ground)
+        p[flat, 2] = gz + float(args.height)
+    levels = {
+        args.array: facades.levels_at_points(grid.level(args.array), grid.origin, grid.spacing, grid.frame.to_local(p))
+    }
+    crs = grid.frame.crs_wkt
+    return [
+        geojson.write_geojson(out / "receivers.geojson", facades.points_features(p, ids, levels), crs),
+        facades.write_points_csv(out / "receivers.csv", p, ids, levels),
+    ]
 
 
 def _ground_fn(args: argparse.Namespace) -> Any:

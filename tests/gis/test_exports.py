@@ -163,3 +163,25 @@ def test_isophone_bands_keep_holes():
     assert geom.is_valid and len(geom.geoms[0].interiors) == 1
     # the annulus 5 < r <= 10 of a cone sampled on a 1 m grid: area pi (100 - 25) within 1 %
     assert geom.area == pytest.approx(math.pi * 75.0, rel=0.01)
+
+
+def test_receiver_points_levels(tmp_path):
+    result, _, energy = _field(tmp_path)
+    pts = tmp_path / "r.geojson"
+
+    def point(props, coords):
+        return {"type": "Feature", "properties": props, "geometry": {"type": "Point", "coordinates": coords}}
+
+    feats = [point({"id": "a"}, [X0 + 33.0, Y0 + 41.5, 3.3]), point({"name": "b"}, [X0 + 150.0, Y0 + 77.0])]
+    pts.write_text(json.dumps({"type": "FeatureCollection", "features": feats}))
+    args = ["export", str(result), "--format", "receivers", "--receivers", str(pts), "--array", "spl_e",
+            "--height", "1.5", "--ground-z", "2.0", "--crs", "32632", "--origin", str(X0), str(Y0)]  # fmt: skip
+    assert main(args) == 0
+    data = json.loads((result / "export" / "receivers.geojson").read_text())
+    got = {f["properties"]["id"]: f["properties"]["spl_e"] for f in data["features"]}
+    # spl_e = 10 lg(1 + 0.5 x + 0.25 y + 2 z) in the local frame: trilinear in energy is exact
+    assert got["a"] == pytest.approx(10 * math.log10(1 + 0.5 * 33.0 + 0.25 * 41.5 + 2 * 3.3), abs=1e-9)
+    assert got["b"] == pytest.approx(10 * math.log10(1 + 0.5 * 150.0 + 0.25 * 77.0 + 2 * 3.5), abs=1e-9)
+    assert data["features"][1]["geometry"]["coordinates"] == [X0 + 150.0, Y0 + 77.0, 3.5]
+    rows = (result / "export" / "receivers.csv").read_text().splitlines()
+    assert rows[0] == "id,x,y,z,spl_e" and rows[1].startswith("a,500033.000,5400041.500,3.300,")
