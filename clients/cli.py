@@ -253,6 +253,15 @@ def _add_service_verbs(sub: argparse._SubParsersAction) -> None:
 COMMANDS.append(_add_service_verbs)
 
 
+def _add_export(sub: argparse._SubParsersAction) -> None:
+    from bentray.clients.export_cli import add_export  # bentray export (GeoTIFF, isophones, facades, ...)
+
+    add_export(sub)
+
+
+COMMANDS.append(_add_export)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="bentray", description="Outdoor-acoustics curved-ray engine.")
     parser.add_argument("--version", action="version", version=f"bentray {bentray.__version__}")

@@ -15,6 +15,8 @@ from bentray.engine.executors import Executor, LocalExecutor
 from bentray.engine.report import build_report
 from bentray.engine.result import JobOutcome
 from bentray.engine.stages import ProgressFn, StageLog
+from bentray.scenes.gis_frame import localise_job
+from bentray.scenes.scene_models import resolve_source_heights
 from bentray.scenes.schema import Job
 
 __all__ = ["ProgressFn", "run_job"]
@@ -39,12 +41,14 @@ def run_job(
     that scale out pass e.g. ``executors.make_executor(dask_address)``).
     """
     report_progress = progress or _no_progress
+    job, frame = localise_job(job)  # scene.crs: CRS coordinates -> the local frame (identity otherwise)
     runner = executor if executor is not None else LocalExecutor()
     log = StageLog()
     report_progress("profile", 0.0)
     profile, wind = stages.stage_profile(job, base_dir, log)
     report_progress("scene", 0.02)
     surfaces = stages.stage_scene(job, base_dir, log)
+    job = resolve_source_heights(job, surfaces)  # sources given by height above the ground get their z
     profile = stages.stage_profile_heights(job, profile, surfaces, log)
     report_progress("mesh", 0.05)
     media = stages.stage_mesh(job, profile, surfaces, wind, log)
@@ -70,6 +74,8 @@ def run_job(
     )
     if receivers is not None:
         report["receivers"] = receivers.stats
+    if frame.crs_wkt is not None:
+        report["georeference"] = frame.as_dict()  # bentray export places the outputs back in the CRS
     report_progress("done", 1.0)
     return JobOutcome(
         trace=traced.result, mesh_geometry=geometry, report=report, field=field_arrays, receivers=receivers

@@ -142,9 +142,18 @@ def load_surfaces(job: Job, base_dir: Path | None = None) -> SceneSurfaces | Non
         if not scene.has_surfaces:
             return None
         return get_builtin(scene.builtin, scene.resolution).surfaces
-    if scene.terrain is None and scene.buildings is None:
+    if scene.terrain is None and scene.buildings is None and scene.ground_zones is None:
         return None
-    return surfaces_from_specs(scene.terrain, scene.buildings, scene.materials, base_dir, scene.box, prefix="scene")
+    return surfaces_from_specs(
+        scene.terrain,
+        scene.buildings,
+        scene.materials,
+        base_dir,
+        scene.box,
+        prefix="scene",
+        ground_zones=scene.ground_zones,
+        offset=scene.local_origin if scene.crs is not None else None,
+    )
 
 
 def _domain(job: Job) -> tuple[np.ndarray, np.ndarray]:

@@ -60,12 +60,26 @@ class Footprint:
     polygon : (k, 2) float64 x, y of a simple polygon, counter-clockwise, not closed (first != last).
     height_m : height of the roof above ``base_z``; base_z : ground level of the footprint in metres
     (None: the lowest terrain height under the polygon). material : index of the walls and roof.
-    name : for error messages and reports.
+    name : for error messages and reports. holes : courtyards, each (h, 2) float64 clockwise, not closed,
+    strictly inside the polygon and pairwise disjoint (air columns open to the sky).
     """
 
     polygon: np.ndarray
     height_m: float
     base_z: float | None = None
+    material: int = 0
+    name: str = ""
+    holes: list[np.ndarray] = field(default_factory=list)
+
+
+@dataclass
+class GroundZone:
+    """A plan-view zone of ground with its own material: polygon (k, 2) counter-clockwise, holes (h, 2)
+    clockwise, rings not closed, metres; material : index into SceneSurfaces.materials. Later zones win
+    where zones overlap; ground faces take the zone under their centroid."""
+
+    polygon: np.ndarray
+    holes: list[np.ndarray] = field(default_factory=list)
     material: int = 0
     name: str = ""
 
@@ -81,3 +95,4 @@ class SceneSurfaces:
     obstacles: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)
     obstacle_materials: list[int] = field(default_factory=list)  # material index per obstacle (empty: rigid)
     materials: list[Material] = field(default_factory=lambda: [Material("rigid", None)])
+    ground_zones: list[GroundZone] = field(default_factory=list)  # ground materials by zone (painted in order)

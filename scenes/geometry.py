@@ -1,5 +1,7 @@
-"""Plain-numpy geometry for checking scene inputs: box-overlap candidate pairs, plan-view point location,
-terrain height lookup and simple-polygon tests.
+"""Plain-numpy geometry for checking scene meshes: box-overlap candidate pairs, plan-view point location in
+triangles, terrain height lookup and segment crossings.
+
+Polygon predicates (validity, overlap, point in polygon) are shapely's: see :mod:`bentray.scenes.gis_geometry`.
 
 No I/O and no exceptions of our own: functions return arrays or a reason string (``None`` = fine); the
 readers in :mod:`bentray.scenes.terrain_io` and :mod:`bentray.scenes.scene_models` turn reasons into
@@ -14,17 +16,13 @@ from bentray.engine.surfaces import HeightGrid, TriangleSurface
 
 __all__ = [
     "GEOMETRY_REL_TOL",
+    "MAX_BOX_COORDINATE",
     "MAX_CANDIDATE_PAIRS",
     "CandidateLimitError",
     "box_pairs",
     "locate_points_2d",
     "terrain_height_at",
     "terrain_xy_bounds",
-    "polygon_signed_area",
-    "normalise_polygon",
-    "polygon_problem",
-    "points_in_polygon",
-    "polygons_overlap",
     "segments_cross",
 ]
 
@@ -37,6 +35,9 @@ GEOMETRY_REL_TOL = 1e-9
 MAX_CANDIDATE_PAIRS = 20_000_000
 # Grid cells per axis of the bucketing grid (keys stay inside int64 in 3D).
 _MAX_CELLS_PER_AXIS = 1 << 16
+# Box coordinates beyond this are refused: differences and squares of coordinates up to 1e150 stay finite
+# (a 1e308 coordinate made the extent overflow to inf and the cell-size loop spin on NaN forever).
+MAX_BOX_COORDINATE = 1e150
 
 
 class CandidateLimitError(ValueError):
@@ -70,12 +71,16 @@ def box_pairs(
     lo_a, hi_a : (Na, d) float64, d = 2 or 3; lo_b, hi_b : (Nb, d) or None for a self-join.
     Returns (ia, ib) int64 arrays, unique pairs; for a self-join only ia < ib.
     Uniform-grid bucketing (cell size about the median box size): near-linear for well-shaped inputs.
-    Raises CandidateLimitError beyond MAX_CANDIDATE_PAIRS.
+    Raises CandidateLimitError beyond MAX_CANDIDATE_PAIRS and ValueError for a coordinate that is not finite
+    or beyond MAX_BOX_COORDINATE in magnitude.
     """
     self_join = lo_b is None or hi_b is None
     if self_join:
         lo_b, hi_b = lo_a, hi_a
     assert lo_b is not None and hi_b is not None
+    for arr in (lo_a, hi_a, lo_b, hi_b):
+        if arr.size and not (np.all(np.isfinite(arr)) and np.abs(arr).max() <= MAX_BOX_COORDINATE):
+            raise ValueError(f"box coordinates must be finite and at most {MAX_BOX_COORDINATE:g} in magnitude")
     empty = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
     if lo_a.shape[0] == 0 or lo_b.shape[0] == 0:
         return empty
@@ -92,13 +97,15 @@ def box_pairs(
         1e-300,
     )
     grid_origin = origin - pad
-    while True:
+    for _ in range(4096):  # h doubles each round: finite inputs break out long before h overflows
         dims = np.floor((top + pad - grid_origin) / h).astype(np.int64) + 1
         span_a = np.prod(np.floor((hi_a - lo_a) / h) + 2, axis=1).sum()
         span_b = np.prod(np.floor((hi_b - lo_b) / h) + 2, axis=1).sum()
         if span_a + span_b <= 16 * n_boxes + 64:
             break
         h *= 2.0  # a few huge boxes would otherwise register in very many cells
+    else:
+        raise ValueError("box_pairs: no cell size fits the boxes (non-finite extent)")
     box_a, key_a = _registrations(lo_a, hi_a, grid_origin, h, dims)
     box_b, key_b = _registrations(lo_b, hi_b, grid_origin, h, dims)
     order_b = np.argsort(key_b, kind="stable")
@@ -205,31 +212,6 @@ def terrain_height_at(terrain: HeightGrid | TriangleSurface, xy: np.ndarray) -> 
     return out
 
 
-# ---------------------------------------------------------------------------------------------
-# Polygons: (k, 2) float64, not closed (first != last)
-# ---------------------------------------------------------------------------------------------
-def polygon_signed_area(poly: np.ndarray) -> float:
-    """Shoelace area in m^2: positive for counter-clockwise vertex order."""
-    x, y = poly[:, 0], poly[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
-
-
-def normalise_polygon(coords: np.ndarray) -> np.ndarray:
-    """Conversion (not a check): drop a closing vertex equal to the first and consecutive duplicate vertices,
-    and order the vertices counter-clockwise. Returns a new (k, 2) float64 array."""
-    poly = np.asarray(coords, dtype=np.float64)[:, :2]
-    if poly.shape[0] == 0:
-        return poly.copy()
-    keep = np.ones(poly.shape[0], dtype=bool)
-    keep[1:] = np.any(poly[1:] != poly[:-1], axis=1)
-    poly = poly[keep]
-    while poly.shape[0] > 1 and np.array_equal(poly[0], poly[-1]):
-        poly = poly[:-1]
-    if poly.shape[0] >= 3 and polygon_signed_area(poly) < 0:
-        poly = poly[::-1].copy()
-    return poly
-
-
 def segments_cross(
     a: np.ndarray, b: np.ndarray, c: np.ndarray, d: np.ndarray, tol: float, *, touching: bool
 ) -> np.ndarray:
@@ -261,95 +243,3 @@ def segments_cross(
     return (
         proper | on_segment(a, b, c, d1) | on_segment(a, b, d, d2) | on_segment(c, d, a, d3) | on_segment(c, d, b, d4)
     )
-
-
-def _scale(poly: np.ndarray) -> float:
-    return max(float(np.ptp(poly, axis=0).max()), float(np.abs(poly).max()), 1.0)
-
-
-def polygon_problem(poly: np.ndarray) -> str | None:
-    """Why ``poly`` (k, 2) is not a simple polygon, or None. Expects :func:`normalise_polygon` output
-    (no closing vertex, no consecutive duplicates). Checks: at least 3 distinct vertices, finite, non-zero
-    area, no two non-adjacent edges touching or crossing, no adjacent edges folding back on each other."""
-    if poly.ndim != 2 or poly.shape[1] != 2:
-        return f"expected a list of [x, y] vertices, got an array of shape {poly.shape}"
-    if not np.all(np.isfinite(poly)):
-        return "a vertex coordinate is not a finite number"
-    k = poly.shape[0]
-    n_distinct = np.unique(poly, axis=0).shape[0]
-    if n_distinct < 3:
-        return f"a polygon needs at least 3 distinct vertices, got {n_distinct}"
-    tol = GEOMETRY_REL_TOL * _scale(poly)
-    far = int(np.argmax(np.hypot(*(poly - poly[0]).T)))
-    direction = (poly[far] - poly[0]) / np.hypot(*(poly[far] - poly[0]))
-    off_line = np.abs(_cross2(direction[0], direction[1], poly[:, 0] - poly[0, 0], poly[:, 1] - poly[0, 1]))
-    if off_line.max() <= tol:
-        return "the polygon has zero area: its vertices are collinear"
-    a, b = poly, np.roll(poly, -1, axis=0)
-    # adjacent edges i-1 and i fold back when they are collinear and point in opposite directions
-    e_prev, e_next = a - np.roll(a, 1, axis=0), b - a
-    cross = _cross2(e_prev[:, 0], e_prev[:, 1], e_next[:, 0], e_next[:, 1])
-    dot = np.sum(e_prev * e_next, axis=1)
-    fold = (np.abs(cross) <= tol * np.hypot(*e_prev.T) + 1e-300) & (dot < 0)
-    if np.any(fold):
-        i = int(np.argmax(fold))
-        return f"the boundary folds back on itself at vertex {i} ({poly[i, 0]:g}, {poly[i, 1]:g})"
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    i, j = box_pairs(lo, hi)
-    non_adjacent = (j - i != 1) & ~((i == 0) & (j == k - 1))
-    i, j = i[non_adjacent], j[non_adjacent]
-    hit = segments_cross(a[i], b[i], a[j], b[j], tol, touching=True)
-    if np.any(hit):
-        n = int(np.argmax(hit))
-        e1, e2 = int(i[n]), int(j[n])
-        return (
-            f"the polygon is not simple: edge {e1} ({a[e1, 0]:g}, {a[e1, 1]:g})-({b[e1, 0]:g}, {b[e1, 1]:g}) "
-            f"and edge {e2} ({a[e2, 0]:g}, {a[e2, 1]:g})-({b[e2, 0]:g}, {b[e2, 1]:g}) intersect"
-        )
-    area = polygon_signed_area(poly)
-    if abs(area) <= tol * _scale(poly):
-        return f"the polygon has zero area ({area:.3g} m^2)"
-    return None
-
-
-def points_in_polygon(points_xy: np.ndarray, poly: np.ndarray, *, margin: float = 0.0) -> np.ndarray:
-    """(N,) bool: the points lie inside the simple polygon (even-odd rule) and at least ``margin`` metres
-    from its boundary (margin < 0 admits points up to -margin outside)."""
-    p = np.asarray(points_xy, dtype=np.float64).reshape(-1, 2)
-    a, b = poly, np.roll(poly, -1, axis=0)
-    px, py = p[:, 0:1], p[:, 1:2]
-    ax, ay, bx, by = a[:, 0], a[:, 1], b[:, 0], b[:, 1]
-    straddle = (ay > py) != (by > py)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        x_cross = ax + (py - ay) * (bx - ax) / (by - ay)
-    inside = (np.count_nonzero(straddle & (px < x_cross), axis=1) % 2) == 1
-    # distance to the boundary: min over edges of the point-segment distance
-    ex, ey = bx - ax, by - ay
-    len2 = np.where(ex * ex + ey * ey > 0, ex * ex + ey * ey, 1.0)
-    t = np.clip(((px - ax) * ex + (py - ay) * ey) / len2, 0.0, 1.0)
-    dist = np.hypot(px - (ax + t * ex), py - (ay + t * ey)).min(axis=1)
-    if margin >= 0:
-        return inside & (dist >= margin)
-    return inside | (dist <= -margin)
-
-
-def polygons_overlap(p: np.ndarray, q: np.ndarray) -> bool:
-    """True when the interiors of two simple polygons overlap by more than GEOMETRY_REL_TOL x size.
-
-    Tests: proper edge crossings; a vertex, an edge midpoint or the vertex mean of one polygon strictly
-    inside the other; identical vertex sets. Touching (shared walls, common corners) is not overlap.
-    """
-    tol = GEOMETRY_REL_TOL * max(_scale(p), _scale(q))
-    pa, pb = p, np.roll(p, -1, axis=0)
-    qa, qb = q, np.roll(q, -1, axis=0)
-    i, j = box_pairs(np.minimum(pa, pb), np.maximum(pa, pb), np.minimum(qa, qb), np.maximum(qa, qb))
-    if np.any(segments_cross(pa[i], pb[i], qa[j], qb[j], tol, touching=False)):
-        return True
-    for s, t in ((p, q), (q, p)):
-        probes = np.concatenate([s, 0.5 * (s + np.roll(s, -1, axis=0)), s.mean(axis=0, keepdims=True)])
-        mean_inside_s = points_in_polygon(probes[-1:], s, margin=tol)[0]
-        if not mean_inside_s:
-            probes = probes[:-1]  # the vertex mean of a non-convex polygon can lie outside it
-        if np.any(points_in_polygon(probes, t, margin=tol)):
-            return True
-    return p.shape == q.shape and np.array_equal(np.unique(p, axis=0), np.unique(q, axis=0))

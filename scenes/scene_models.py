@@ -13,23 +13,25 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Literal, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from bentray.engine.errors import JobInputError
 from bentray.engine.surfaces import Footprint, HeightGrid, Material, SceneSurfaces, TriangleSurface
-from bentray.scenes.geometry import (
-    box_pairs,
-    normalise_polygon,
+from bentray.scenes.geometry import box_pairs, terrain_height_at, terrain_xy_bounds
+from bentray.scenes.gis_frame import shift_footprint, shift_terrain, shift_zone
+from bentray.scenes.gis_geometry import (
+    footprint_from_polygon,
+    footprint_polygon,
+    overlapping_pairs,
     points_in_polygon,
-    polygon_problem,
-    polygons_overlap,
-    terrain_height_at,
-    terrain_xy_bounds,
+    polygon_from_rings,
 )
+from bentray.scenes.ground_zones import GroundZonesSpec, ground_zones_from_spec
 from bentray.scenes.terrain_io import (
+    DEFAULT_STOREY_HEIGHT_M,
     MAX_BUILDING_HEIGHT_M,
     MAX_FOOTPRINTS,
     MAX_POLYGON_VERTICES,
@@ -55,6 +57,7 @@ __all__ = [
     "footprint_base_z",
     "footprint_bases",
     "check_points_above_ground",
+    "resolve_source_heights",
 ]
 
 RIGID = "rigid"  # material 0: acoustically rigid, always defined
@@ -124,22 +127,30 @@ class TerrainSpec(_Model):
 
 
 class FootprintSpec(_Model):
-    """An inline building or barrier: a simple polygon [[x, y], ...] (either orientation, closing vertex
-    optional), ``height_m`` above ``base_z`` (default: the lowest terrain under the polygon)."""
+    """An inline building or barrier: a polygon [[x, y], ...] (either orientation, closing vertex optional)
+    with optional ``holes`` (courtyards, same form), ``height_m`` above ``base_z`` (default: the lowest
+    terrain under the polygon) or ``levels`` storeys of ``scene.buildings.storey_height_m``."""
 
     polygon: list[tuple[float, float]] = Field(min_length=3, max_length=MAX_POLYGON_VERTICES)
-    height_m: float = Field(gt=0, lt=MAX_BUILDING_HEIGHT_M)
+    holes: list[list[tuple[float, float]]] = Field(default_factory=list, max_length=1000)
+    height_m: float | None = Field(default=None, gt=0, lt=MAX_BUILDING_HEIGHT_M)
+    levels: float | None = Field(default=None, gt=0, le=300)
     base_z: float | None = None
     material: str | None = None
     name: str | None = Field(default=None, max_length=100)
 
-    @field_validator("polygon")
-    @classmethod
-    def _simple(cls, value: list[tuple[float, float]]) -> list[tuple[float, float]]:
-        problem = polygon_problem(normalise_polygon(np.array(value, dtype=np.float64)))
+    @model_validator(mode="after")
+    def _valid(self) -> FootprintSpec:
+        if (self.height_m is None) == (self.levels is None):
+            raise ValueError("give exactly one of height_m (metres) and levels (storeys)")
+        _, problem = polygon_from_rings(self.polygon, self.holes)
         if problem:
             raise ValueError(problem)
-        return value
+        return self
+
+    def height(self, storey_height_m: float) -> float:
+        """Roof height above the base in metres (``height_m``, or ``levels`` x storey_height_m)."""
+        return float(self.height_m) if self.height_m is not None else float(self.levels or 0) * storey_height_m
 
 
 class ObstacleSpec(_Model):
@@ -157,6 +168,8 @@ class BuildingsSpec(_Model):
     file: str | None = Field(default=None, min_length=1)
     footprints: list[FootprintSpec] = Field(default_factory=list, max_length=MAX_FOOTPRINTS)
     obstacles: list[ObstacleSpec] = Field(default_factory=list, max_length=1000)
+    # metres per storey for `levels` / GeoJSON `building:levels`
+    storey_height_m: float = Field(default=DEFAULT_STOREY_HEIGHT_M, gt=0, le=20)
 
     @field_validator("file")
     @classmethod
@@ -169,6 +182,12 @@ class BuildingsSpec(_Model):
     def _something(self) -> BuildingsSpec:
         if self.file is None and not self.footprints and not self.obstacles:
             raise ValueError("give a GeoJSON file, footprints or obstacles (or leave buildings out)")
+        for i, fp in enumerate(self.footprints):
+            if not fp.height(self.storey_height_m) < MAX_BUILDING_HEIGHT_M:
+                raise ValueError(
+                    f"footprints.{i}: {fp.levels:g} levels x {self.storey_height_m:g} m is not below "
+                    f"{MAX_BUILDING_HEIGHT_M:g} m"
+                )
         return self
 
 
@@ -225,7 +244,8 @@ def footprint_bases(
             i0, i1 = int(np.searchsorted(terrain.y, lo[n, 1])), int(np.searchsorted(terrain.y, hi[n, 1], "right"))
             gx, gy = np.meshgrid(terrain.x[j0:j1], terrain.y[i0:i1])
             nodes = np.column_stack([gx.ravel(), gy.ravel()])
-            inside_z.append(terrain.z[i0:i1, j0:j1].ravel()[points_in_polygon(nodes, footprints[k].polygon)])
+            inside = points_in_polygon(footprint_polygon(footprints[k]), nodes)
+            inside_z.append(terrain.z[i0:i1, j0:j1].ravel()[inside])
     else:
         e = terrain.vertices[terrain.triangles][:, :, :2]
         step = 0.5 * float(np.median(np.linalg.norm(np.roll(e, -1, axis=1) - e, axis=2)))
@@ -233,14 +253,15 @@ def footprint_bases(
         iv, ifp = box_pairs(xy, xy, lo, hi)
         for n, k in enumerate(todo):
             v = iv[ifp == n]
-            inside_z.append(terrain.vertices[v[points_in_polygon(xy[v], footprints[k].polygon)], 2])
+            inside_z.append(terrain.vertices[v[points_in_polygon(footprint_polygon(footprints[k]), xy[v])], 2])
     for n, k in enumerate(todo):
-        poly = footprints[k].polygon
-        a, b = poly, np.roll(poly, -1, axis=0)
-        samples = [a]
-        for m in range(poly.shape[0]):
-            count = max(int(np.ceil(np.linalg.norm(b[m] - a[m]) / step)), 1)
-            samples.append(a[m] + (np.arange(1, count)[:, None] / count) * (b[m] - a[m]))
+        samples = []
+        for poly in [footprints[k].polygon, *footprints[k].holes]:
+            a, b = poly, np.roll(poly, -1, axis=0)
+            samples.append(a)
+            for m in range(poly.shape[0]):
+                count = max(int(np.ceil(np.linalg.norm(b[m] - a[m]) / step)), 1)
+                samples.append(a[m] + (np.arange(1, count)[:, None] / count) * (b[m] - a[m]))
         edge_z = terrain_height_at(terrain, np.concatenate(samples))
         out[k] = min(float(np.min(edge_z)), float(np.min(inside_z[n], initial=np.inf)))
     return out
@@ -267,14 +288,20 @@ def surfaces_from_specs(
     base_dir: str | Path | None,
     domain: _Box,
     prefix: str = "scene",
+    *,
+    ground_zones: GroundZonesSpec | None = None,
+    offset: tuple[float, float] | None = None,
 ) -> SceneSurfaces:
     """Read and check the scene's surface files and inline footprints; return the engine container.
 
     domain : the scene box (``min``, ``max`` in metres). Checks: material names defined and unique;
     terrain covers the domain's xy box, stays inside [min z, max z); every footprint vertex strictly
     inside the xy box, roofs below max z, no two footprints overlapping (touching walls are fine);
-    obstacle vertices strictly inside the box. Raises SceneFileError (unreadable or invalid file) or
-    SceneSpecError, each line starting with the job field (``scene.terrain.file: ...``).
+    obstacle vertices strictly inside the box. ``ground_zones``: zones painted over the ground (their
+    flow resistivities / G values appended to the material table). ``offset`` (x0, y0): subtracted from every
+    plan coordinate read (a CRS scene localised by :func:`bentray.scenes.gis_frame.localise_job`; the
+    domain is then already local). Raises SceneFileError (unreadable or
+    invalid file) or SceneSpecError, each line starting with the job field (``scene.terrain.file: ...``).
     """
     materials = list(materials or [])
     dmin = np.asarray(domain.min, dtype=np.float64)
@@ -288,6 +315,13 @@ def surfaces_from_specs(
     table = [Material(RIGID, None)] + [Material(m.name, m.flow_resistivity) for m in materials]
     index = {m.name: i for i, m in enumerate(table)}
     surfaces = SceneSurfaces(materials=table)
+    if ground_zones is not None:
+        try:
+            zones, new_materials = ground_zones_from_spec(ground_zones, base_dir, index, len(table))
+        except ValueError as exc:
+            raise SceneSpecError(f"{prefix}.ground_zones: {exc}") from None
+        table += [Material(name, sigma) for name, sigma in new_materials]
+        surfaces.ground_zones = [shift_zone(z, offset) for z in zones] if offset else zones
 
     if terrain is not None:
         field = f"{prefix}.terrain.file"
@@ -298,6 +332,8 @@ def surfaces_from_specs(
         except SceneFileError as exc:
             raise SceneFileError(f"{field}: {exc}") from None
         grid.default_material = index[terrain.material or RIGID]
+        if offset:
+            shift_terrain(grid, offset)
         errors += [f"{field}: {why}" for why in _terrain_problems(grid, dmin, dmax)]
         surfaces.terrain = grid
 
@@ -306,18 +342,22 @@ def surfaces_from_specs(
         if buildings.file is not None:
             field = f"{prefix}.buildings.file"
             try:
-                read = read_footprints_geojson(_resolve(base_dir, buildings.file), index)
+                read = read_footprints_geojson(_resolve(base_dir, buildings.file), index, buildings.storey_height_m)
             except SceneFileError as exc:
                 raise SceneFileError(f"{field}: {exc}") from None
-            labelled += [(f"{field}: {fp.name!r}", fp) for fp in read]
+            labelled += [(f"{field}: {fp.name!r}", shift_footprint(fp, offset) if offset else fp) for fp in read]
         for i, spec in enumerate(buildings.footprints):
-            fp = Footprint(
-                polygon=normalise_polygon(np.array(spec.polygon, dtype=np.float64)),
-                height_m=spec.height_m,
+            poly, _ = polygon_from_rings(spec.polygon, spec.holes)
+            assert poly is not None  # checked by FootprintSpec
+            fp = footprint_from_polygon(
+                poly,
+                height_m=spec.height(buildings.storey_height_m),
                 base_z=spec.base_z,
                 material=index[spec.material or RIGID],
                 name=spec.name or f"footprint {i}",
             )
+            if offset:
+                shift_footprint(fp, offset)
             labelled.append((f"{prefix}.buildings.footprints.{i}" + (f" ({spec.name!r})" if spec.name else ""), fp))
         for i, ob in enumerate(buildings.obstacles):
             field = f"{prefix}.buildings.obstacles.{i}.file"
@@ -325,6 +365,8 @@ def surfaces_from_specs(
                 vertices, faces = read_obstacle_mesh(_resolve(base_dir, ob.file), ob.format)
             except SceneFileError as exc:
                 raise SceneFileError(f"{field}: {exc}") from None
+            if offset:
+                vertices = vertices - np.array([offset[0], offset[1], 0.0])
             outside = ~np.all((vertices > dmin) & (vertices < dmax), axis=1)
             if np.any(outside):
                 errors.append(
@@ -406,11 +448,8 @@ def _footprint_problems(
                 f"{label}: the roof at z = {base + fp.height_m:g} m is not below the domain top (max z = {dmax[2]:g} m)"
             )
     if len(labelled) > 1 and not problems:
-        lo = np.array([fp.polygon.min(axis=0) for _, fp in labelled])
-        hi = np.array([fp.polygon.max(axis=0) for _, fp in labelled])
-        for i, j in zip(*box_pairs(lo, hi), strict=True):
-            if polygons_overlap(labelled[i][1].polygon, labelled[j][1].polygon):
-                problems.append(f"{labelled[i][0]} overlaps {labelled[j][0]}; footprints may touch but not overlap")
+        for i, j in overlapping_pairs([footprint_polygon(fp) for _, fp in labelled]):
+            problems.append(f"{labelled[i][0]} overlaps {labelled[j][0]}; footprints may touch but not overlap")
     return problems
 
 
@@ -473,8 +512,8 @@ def check_points_above_ground(
         near = np.flatnonzero(np.all((p[:, :2] >= lo) & (p[:, :2] <= hi), axis=1))
         if near.size == 0:
             continue
-        tol = 1e-9 * max(float(np.abs(fp.polygon).max()), 1.0)
-        inside = points_in_polygon(p[near, :2], fp.polygon, margin=-tol)
+        tol = 1e-9 * max(float(np.ptp(fp.polygon, axis=0).max()), 1.0)
+        inside = points_in_polygon(footprint_polygon(fp), p[near, :2], margin=-tol)
         roof = base + fp.height_m
         for k in near[inside & (p[near, 2] <= roof)]:
             bad.setdefault(int(k), f"is inside building {fp.name!r} (roof at z = {roof:g} m)")
@@ -484,3 +523,28 @@ def check_points_above_ground(
             bad.setdefault(int(k), f"is inside obstacle {i}")
     if bad:
         raise SceneSpecError("\n".join(f"{names[k]}: {_fmt(p[k])} {bad[k]}" for k in sorted(bad)))
+
+
+def resolve_source_heights(job: Any, surfaces: SceneSurfaces | None) -> Any:
+    """The job with every source given as ``position`` [x, y] + ``height_above_ground_m`` turned into an
+    absolute [x, y, ground + h] (ground: the terrain, bilinear / linear in its triangles, or the flat ground
+    at domain min z); other sources unchanged. Returns ``job`` itself when nothing needs resolving.
+    Raises SceneSpecError naming ``sources.<i>.position`` when the terrain does not cover the point."""
+    todo = [i for i, s in enumerate(job.sources) if len(s.position) == 2]
+    if not todo:
+        return job
+    xy = np.array([job.sources[i].position for i in todo], dtype=np.float64)
+    if surfaces is not None and surfaces.terrain is not None:
+        ground = terrain_height_at(surfaces.terrain, xy)
+    else:
+        ground = np.full(len(todo), float(job.scene.box.min[2]))
+    bad = [
+        f"sources.{i}.position: {_fmt(xy[n])} is outside the terrain" for n, i in enumerate(todo) if np.isnan(ground[n])
+    ]
+    if bad:
+        raise SceneSpecError("\n".join(bad))
+    sources = list(job.sources)
+    for n, i in enumerate(todo):
+        z = float(ground[n]) + float(sources[i].height_above_ground_m)
+        sources[i] = sources[i].model_copy(update={"position": (float(xy[n, 0]), float(xy[n, 1]), z)})
+    return job.model_copy(update={"sources": sources})

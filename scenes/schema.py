@@ -29,7 +29,9 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from bentray.engine.errors import BentrayError
+from bentray.scenes.crs import crs_errors
 from bentray.scenes.field_models import MAX_COHERENT_FIELD_POINTS, FieldSpec
+from bentray.scenes.ground_zones import GroundZonesSpec
 from bentray.scenes.library.registry import BUILTIN_SCENES as _REGISTRY
 from bentray.scenes.profile_models import ProfileSpec
 from bentray.scenes.receiver_models import MAX_RECEIVERS, Receiver
@@ -169,6 +171,12 @@ class Scene(_Model):
     resolution: Literal["medium", "high"] = "medium"
     terrain: TerrainSpec | None = None
     buildings: BuildingsSpec | None = None
+    # ground materials by plan-view zone (scenes/ground_zones.py): flow resistivity, CNOSSOS G or a material
+    ground_zones: GroundZonesSpec | None = None
+    # projected CRS of every plan coordinate (EPSG code or WKT); the engine works relative to local_origin
+    # (default: the domain's lower-left corner rounded down to 1 km), see scenes/gis_frame.py
+    crs: int | str | None = None
+    local_origin: tuple[float, float] | None = None
     materials: list[MaterialSpec] = Field(default_factory=list, max_length=256)
     # "above_ground": the profile's z is the height above the local ground (terrain, or the domain
     # bottom); "absolute": world z (the paper's c(z); keep domain.min z at 0 for stratified laws)
@@ -187,11 +195,12 @@ class Scene(_Model):
         if self.builtin is None and self.domain is None:
             errors.append((("domain",), "a domain is required unless the scene is builtin", None))
         if self.builtin is not None:
-            for key in ("terrain", "buildings"):
+            for key in ("terrain", "buildings", "ground_zones"):
                 if getattr(self, key) is not None:
                     errors.append(
                         ((key,), f"builtin scene {self.builtin!r} brings its own {key}; remove one of them", None)
                     )
+        errors.extend((loc, why, None) for loc, why in crs_errors(self.crs, self.local_origin, self.builtin))
         if self.terrain is not None and self.ground.flow_resistivity is not None:
             errors.append(
                 (
@@ -220,7 +229,7 @@ class Scene(_Model):
     @property
     def has_surfaces(self) -> bool:
         """True when the scene has terrain, buildings or a builtin with surfaces (a conforming mesh)."""
-        if self.terrain is not None or self.buildings is not None:
+        if self.terrain is not None or self.buildings is not None or self.ground_zones is not None:
             return True
         if self.builtin is not None:
             surf = _builtin(self.builtin, self.resolution).surfaces
@@ -239,11 +248,23 @@ def _builtin(name: str, resolution: str):
 # Sources and rays
 # ---------------------------------------------------------------------------------------------
 class Source(_Model):
-    """Point source. ``power_db``: optional sound power level per band label (dB re 1 pW)."""
+    """Point source. ``power_db``: optional sound power level per band label (dB re 1 pW).
 
-    position: Vec3
+    ``position`` [x, y, z] (absolute z, metres) or [x, y] with ``height_above_ground_m`` (exactly one of the
+    two; the z is resolved against the terrain, or the flat ground, when the job is prepared)."""
+
+    position: Vec3 | tuple[float, float]
+    height_above_ground_m: float | None = Field(default=None, gt=0, lt=10_000)
     power_db: dict[str, float] | None = None
     name: str | None = None
+
+    @model_validator(mode="after")
+    def _one_height(self) -> Source:
+        if (len(self.position) == 3) == (self.height_above_ground_m is not None):
+            raise ValueError(
+                "give position [x, y, z] (absolute z) or position [x, y] with height_above_ground_m (exactly one)"
+            )
+        return self
 
 
 class AngleRange(_Model):
@@ -451,6 +472,8 @@ class Job(_Model):
         domain = self.scene.box
         for i, source in enumerate(self.sources):
             p = source.position
+            if len(p) == 2:  # height above the ground: z resolved at job preparation
+                p = (p[0], p[1], float(domain.min[2]) + float(source.height_above_ground_m or 0.0))
             if not p[2] > domain.min[2]:
                 errors.append(
                     (

@@ -15,8 +15,9 @@ Formats
   spacing come from the job. ``.npz``: keys ``z``, ``origin`` (2,), ``spacing`` (2,), or ``x``, ``y``, ``z``.
 - OBJ / STL / PLY through trimesh (``process=False``): bit-identical vertices are merged (STL stores each
   corner separately), then the checks of :mod:`bentray.scenes.mesh_checks` run.
-- GeoJSON FeatureCollection of Polygon features with a numeric ``height`` property (m, 0 < h < 1000) and
-  optional ``base_z`` (m), ``material`` (a name from scene.materials) and ``name``.
+- GeoJSON FeatureCollection of Polygon or MultiPolygon features (holes allowed) with a ``height`` property
+  (m, 0 < h < 1000) or ``building:levels`` (x the storey height, default 3 m), optional ``base_z`` (m),
+  ``material`` (a name from scene.materials) and ``name``. Validity is shapely's (the ``gis`` extra).
 """
 
 from __future__ import annotations
@@ -32,7 +33,8 @@ import numpy as np
 
 from bentray.engine.errors import JobInputError
 from bentray.engine.surfaces import Footprint, HeightGrid, TriangleSurface
-from bentray.scenes.geometry import CandidateLimitError, normalise_polygon, polygon_problem
+from bentray.scenes.geometry import CandidateLimitError
+from bentray.scenes.gis_geometry import footprint_from_polygon, geometry_from_geojson
 from bentray.scenes.mesh_checks import (
     basic_mesh_problem,
     closed_mesh_problem,
@@ -48,6 +50,7 @@ __all__ = [
     "MAX_FOOTPRINTS",
     "MAX_POLYGON_VERTICES",
     "MAX_BUILDING_HEIGHT_M",
+    "DEFAULT_STOREY_HEIGHT_M",
     "TERRAIN_FORMATS",
     "MESH_FORMATS",
     "SceneFileError",
@@ -57,6 +60,7 @@ __all__ = [
     "read_terrain_mesh",
     "read_obstacle_mesh",
     "read_footprints_geojson",
+    "feature_height",
     "read_terrain",
 ]
 
@@ -77,6 +81,9 @@ MAX_FOOTPRINTS = 10_000
 MAX_POLYGON_VERTICES = 10_000
 # The tallest building is 830 m; a footprint of 1 km or more is a unit mistake (mm, feet x 1000).
 MAX_BUILDING_HEIGHT_M = 1000.0
+# Storey height for ``building:levels`` (OpenStreetMap): 3 m, the usual floor-to-floor height of housing
+# and offices (the value noise-mapping guidance uses when only the number of storeys is known).
+DEFAULT_STOREY_HEIGHT_M = 3.0
 
 TERRAIN_FORMATS = ("asc", "npy", "npz", "obj", "stl", "ply")
 MESH_FORMATS = ("obj", "stl", "ply")
@@ -401,13 +408,18 @@ def _number(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool) and bool(np.isfinite(value))
 
 
-def read_footprints_geojson(path: str | Path, materials: Mapping[str, int] | None = None) -> list[Footprint]:
-    """GeoJSON FeatureCollection of Polygon features -> Footprints (counter-clockwise, not closed).
+def read_footprints_geojson(
+    path: str | Path, materials: Mapping[str, int] | None = None, storey_height_m: float = DEFAULT_STOREY_HEIGHT_M
+) -> list[Footprint]:
+    """GeoJSON FeatureCollection of Polygon / MultiPolygon features -> Footprints.
 
     materials : material name -> index in SceneSurfaces.materials (default {"rigid": 0}); a feature's
-    ``material`` must be one of them. Conversions (not checks): the closing vertex and consecutive
-    duplicate vertices are dropped and the ring is re-ordered counter-clockwise; a third coordinate is
-    ignored. Holes, MultiPolygons and other geometry types are refused.
+    ``material`` must be one of them. Height: the ``height`` property (metres, a number or a numeric string
+    such as OpenStreetMap's ``"12"`` / ``"12 m"``) or else ``building:levels`` x ``storey_height_m``.
+    Polygons may have holes (courtyards); a MultiPolygon becomes one Footprint per part, named
+    ``name part k``. Conversions (not checks): closing and consecutive duplicate vertices dropped, exterior
+    counter-clockwise and holes clockwise, a third coordinate ignored. Validity is shapely's
+    (``features.7: Self-intersection at (x, y)``).
     """
     path = Path(path)
     _check_size(path)
@@ -427,48 +439,60 @@ def read_footprints_geojson(path: str | Path, materials: Mapping[str, int] | Non
         raise _fail(path, '"features" must be a list')
     if len(features) > MAX_FOOTPRINTS:
         raise _fail(path, f"{len(features):,} features; the limit is {MAX_FOOTPRINTS:,}")
-    return [_footprint(path, i, feature, materials) for i, feature in enumerate(features)]
+    out: list[Footprint] = []
+    for i, feature in enumerate(features):
+        out += _footprints(path, i, feature, materials, storey_height_m)
+    return out
 
 
-def _footprint(path: Path, i: int, feature: Any, materials: dict[str, int]) -> Footprint:
+_HEIGHT_TEXT = re.compile(r"^\s*([0-9]+(?:\.[0-9]*)?|\.[0-9]+)\s*(?:m)?\s*$")
+
+
+def feature_height(props: Mapping[str, Any], storey_height_m: float) -> tuple[float | None, str | None]:
+    """Building height in metres from GeoJSON properties: ``height`` (number or numeric string, metres) or
+    ``building:levels`` x storey_height_m. Returns (height, None) or (None, reason)."""
+    height = props.get("height")
+    if height is not None:
+        if isinstance(height, str) and _HEIGHT_TEXT.match(height):
+            height = float(_HEIGHT_TEXT.match(height)[1])  # type: ignore[index]
+        if not _number(height):
+            return None, f'property "height" must be a number (metres), got {height!r}'
+        value = float(height)
+    else:
+        levels = props.get("building:levels")
+        if isinstance(levels, str) and _HEIGHT_TEXT.match(levels):
+            levels = float(_HEIGHT_TEXT.match(levels)[1])  # type: ignore[index]
+        if levels is None:
+            return None, 'give a "height" property (metres) or "building:levels"'
+        if not _number(levels) or levels <= 0:
+            return None, f'property "building:levels" must be a positive number, got {levels!r}'
+        value = float(levels) * storey_height_m
+    if not 0.0 < value < MAX_BUILDING_HEIGHT_M:
+        return None, f"height {value:g} m must be > 0 and < {MAX_BUILDING_HEIGHT_M:g} m"
+    return value, None
+
+
+def _footprints(path: Path, i: int, feature: Any, materials: dict[str, int], storey_height_m: float) -> list[Footprint]:
+    label = f"features.{i}"
     if not isinstance(feature, dict) or feature.get("type") != "Feature":
-        raise _fail(path, f'feature {i}: expected an object with "type": "Feature"')
+        raise _fail(path, f'{label}: expected an object with "type": "Feature"')
     props = feature.get("properties") or {}
     if not isinstance(props, dict):
-        raise _fail(path, f'feature {i}: "properties" must be an object')
+        raise _fail(path, f'{label}: "properties" must be an object')
     name = props.get("name")
-    label = f"feature {i}" + (f" ({name!r})" if name is not None else "")
+    if name is not None:
+        label += f" ({name!r})"
     geometry = feature.get("geometry")
-    kind = geometry.get("type") if isinstance(geometry, dict) else None
-    if kind == "MultiPolygon":
-        raise _fail(path, f"{label}: MultiPolygon is not supported; split it into one Polygon feature per part")
-    if kind != "Polygon":
-        raise _fail(path, f"{label}: geometry must be a Polygon, got {kind!r}")
-    rings = geometry.get("coordinates")
-    if not isinstance(rings, list) or not rings:
-        raise _fail(path, f"{label}: Polygon coordinates must be a non-empty list of rings")
-    if len(rings) > 1:
-        raise _fail(
-            path,
-            f"{label}: the polygon has {len(rings) - 1} hole(s); buildings with courtyards are not supported "
-            "(split the footprint into parts without holes)",
-        )
-    ring = rings[0]
-    if not isinstance(ring, list) or not all(
-        isinstance(p, list) and len(p) in (2, 3) and all(_number(c) for c in p) for p in ring
-    ):
-        raise _fail(path, f"{label}: the ring must be a list of [x, y] positions with finite numbers")
-    if len(ring) > MAX_POLYGON_VERTICES:
-        raise _fail(path, f"{label}: {len(ring):,} vertices; the limit is {MAX_POLYGON_VERTICES:,}")
-    poly = normalise_polygon(np.array([p[:2] for p in ring], dtype=np.float64).reshape(-1, 2))
-    problem = polygon_problem(poly)
+    if _vertex_count(geometry) > MAX_POLYGON_VERTICES:
+        raise _fail(path, f"{label}: more than {MAX_POLYGON_VERTICES:,} vertices")
+    polys, problem = geometry_from_geojson(geometry)
     if problem:
         raise _fail(path, f"{label}: {problem}")
-    height = props.get("height")
-    if not _number(height):
-        raise _fail(path, f'{label}: property "height" must be a number (metres), got {height!r}')
-    if not 0.0 < height < MAX_BUILDING_HEIGHT_M:
-        raise _fail(path, f"{label}: height {height:g} m must be > 0 and < {MAX_BUILDING_HEIGHT_M:g} m")
+    assert polys is not None
+    height, problem = feature_height(props, storey_height_m)
+    if problem:
+        raise _fail(path, f"{label}: {problem}")
+    assert height is not None
     base_z = props.get("base_z")
     if base_z is not None and not _number(base_z):
         raise _fail(path, f'{label}: property "base_z" must be a number (metres) or null, got {base_z!r}')
@@ -477,13 +501,25 @@ def _footprint(path: Path, i: int, feature: Any, materials: dict[str, int]) -> F
         raise _fail(
             path, f"{label}: material {material!r} is not defined in scene.materials (defined: {', '.join(materials)})"
         )
-    return Footprint(
-        polygon=poly,
-        height_m=float(height),
-        base_z=None if base_z is None else float(base_z),
-        material=int(materials[material]),
-        name=str(name) if name is not None else f"feature {i}",
-    )
+    base = str(name) if name is not None else f"feature {i}"
+    return [
+        footprint_from_polygon(
+            poly,
+            height_m=height,
+            base_z=None if base_z is None else float(base_z),
+            material=int(materials[material]),
+            name=base if len(polys) == 1 else f"{base} part {k}",
+        )
+        for k, poly in enumerate(polys)
+    ]
+
+
+def _vertex_count(geometry: Any) -> int:
+    """Positions in a Polygon / MultiPolygon geometry object (0 when malformed; for the limit only)."""
+    if not isinstance(geometry, dict) or not isinstance(geometry.get("coordinates"), list):
+        return 0
+    parts = geometry["coordinates"] if geometry.get("type") == "MultiPolygon" else [geometry["coordinates"]]
+    return sum(len(ring) for part in parts if isinstance(part, list) for ring in part if isinstance(ring, list))
 
 
 # ---------------------------------------------------------------------------------------------

@@ -198,6 +198,12 @@ def _check_footprints(footprints: list[Footprint], lo: np.ndarray, hi: np.ndarra
         hit[(idx + 1) % k, idx] = False
         if hit.any():
             raise ValueError(f"footprint {name}: polygon is not simple (edges cross or touch)")
+        for h in fp.holes:  # courtyards: validated upstream (shapely); here only their form and containment
+            h = np.asarray(h, dtype=np.float64)
+            if h.ndim != 2 or h.shape[1] != 2 or len(h) < 3 or not np.all(np.isfinite(h)):
+                raise ValueError(f"footprint {name}: each hole must be (k >= 3, 2) finite")
+            if not np.all(points_in_polygon(h, p)):
+                raise ValueError(f"footprint {name}: a hole is not inside the polygon")
         polys.append(p)
     boxes = np.array([[p[:, 0].min(), p[:, 1].min(), p[:, 0].max(), p[:, 1].max()] for p in polys]).reshape(-1, 4)
     over = ((boxes[:, None, 0] <= boxes[None, :, 2]) & (boxes[None, :, 0] <= boxes[:, None, 2])
@@ -205,9 +211,18 @@ def _check_footprints(footprints: list[Footprint], lo: np.ndarray, hi: np.ndarra
     for a, b in zip(*np.nonzero(np.triu(over, 1)), strict=True):
         pa, pb = polys[a], polys[b]
         crossing = segments_intersect(pa, np.roll(pa, -1, axis=0), pb, np.roll(pb, -1, axis=0)).any()
-        if crossing or points_in_polygon(pa[:1], pb)[0] or points_in_polygon(pb[:1], pa)[0]:
+        a_in_b = _in_footprint(pa[:1], pb, footprints[b].holes)[0]
+        if crossing or a_in_b or _in_footprint(pb[:1], pa, footprints[a].holes)[0]:
             raise ValueError(f"footprints {footprints[a].name or a} and {footprints[b].name or b} overlap")
     return polys
+
+
+def _in_footprint(p: np.ndarray, poly: np.ndarray, holes: list[np.ndarray]) -> np.ndarray:
+    """Mask of points p (N, 2) inside the polygon and outside its holes (even-odd over all rings)."""
+    inside = points_in_polygon(p, poly)
+    for h in holes:
+        inside &= ~points_in_polygon(p, np.asarray(h, dtype=np.float64))
+    return inside
 
 
 # ---------------------------------------------------------------------------------------------------
@@ -277,7 +292,10 @@ def build_terrain_mesh(
 
     # --- 2D point set and conforming triangulation ------------------------------------------------------
     ring = box_side_samples(lo[:2], hi[:2], spacing_fn)
-    fp_pts, fp_segs, fp_owner = footprint_samples(polys, spacing_fn)
+    rings = [r for fp, poly in zip(surfaces.footprints, polys, strict=True) for r in [poly, *fp.holes]]
+    ring_fp = np.array([f for f, fp in enumerate(surfaces.footprints) for _ in range(1 + len(fp.holes))], np.int64)
+    fp_pts, fp_segs, fp_owner = footprint_samples([np.asarray(r, dtype=np.float64) for r in rings], spacing_fn)
+    fp_owner = ring_fp[fp_owner] if len(fp_owner) else fp_owner  # ring index -> footprint index
     segs = fp_segs + len(ring)
     constraint = np.concatenate([ring, fp_pts])
 
@@ -309,7 +327,7 @@ def build_terrain_mesh(
     cen = xy[tris].mean(axis=1)
     for f, poly in enumerate(polys):
         cand = np.flatnonzero(np.all((cen >= poly.min(axis=0)) & (cen <= poly.max(axis=0)), axis=1))
-        tri_fp[cand[points_in_polygon(cen[cand], poly)]] = f
+        tri_fp[cand[_in_footprint(cen[cand], poly, surfaces.footprints[f].holes)]] = f
     inside_tris = np.flatnonzero(tri_fp >= 0)
     vertex_fp[tris[inside_tris].ravel()] = np.repeat(tri_fp[inside_tris], 3)
     ground = terrain.height(xy)
@@ -321,6 +339,7 @@ def build_terrain_mesh(
         g_f = ground[vertex_fp == f]
         if fp.base_z is None:
             s_in = terrain.samples_in(poly)
+            s_in = s_in[_in_footprint(s_in, poly, fp.holes)] if fp.holes and len(s_in) else s_in
             base_z[f] = float(np.concatenate([g_f, terrain.height(s_in) if len(s_in) else []]).min())
         else:
             base_z[f] = float(fp.base_z)
@@ -380,7 +399,11 @@ def build_terrain_mesh(
                                   np.where(is_top & (top == "reflect"), BOUNDARY_REFLECT, BOUNDARY_OPEN))  # fmt: skip
     face_material = np.zeros((t, 4), dtype=np.int64)
     gi = np.flatnonzero(is_ground)
-    face_material[bc[gi], bf[gi]] = terrain.material(xy[v2[gi]].mean(axis=1))
+    ground_xy = xy[v2[gi]].mean(axis=1)
+    ground_mat = terrain.material(ground_xy)
+    for zone in surfaces.ground_zones:  # later zones win; each face takes the zone under its centroid
+        ground_mat[_in_footprint(ground_xy, np.asarray(zone.polygon, np.float64), zone.holes)] = zone.material
+    face_material[bc[gi], bf[gi]] = ground_mat
     bi = np.flatnonzero(is_bldg)
     fp_mat = np.array([fp.material for fp in surfaces.footprints], dtype=np.int64)
     face_material[bc[bi], bf[bi]] = fp_mat[owner[bi]] if len(bi) else 0

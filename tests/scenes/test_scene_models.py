@@ -43,7 +43,7 @@ def _invalid(model, data: dict, reason: str) -> None:
         (TerrainSpec, {"file": "t.npy", "origin": [0, 0], "spacing": [1, 0]}, "spacing must be > 0"),
         (TerrainSpec, {"file": "t.asc", "origin": [0, float("nan")]}, "finite number"),
         (TerrainSpec, {"file": "t.asc", "colour": "green"}, "Extra inputs are not permitted"),
-        (FootprintSpec, {"polygon": [[0, 0], [1, 1], [1, 0], [0, 1]], "height_m": 5}, "the polygon is not simple"),
+        (FootprintSpec, {"polygon": [[0, 0], [1, 1], [1, 0], [0, 1]], "height_m": 5}, "Self-intersection at (0.5"),
         (FootprintSpec, {"polygon": [[0, 0], [1, 1]], "height_m": 5}, "at least 3 items"),
         (FootprintSpec, {"polygon": [[0, 0], [1, 0], [0, 1]], "height_m": 1000}, "less than 1000"),
         (MaterialSpec, {"name": "rigid", "flow_resistivity": None}, "'rigid' is built in"),
@@ -135,7 +135,7 @@ def test_file_errors_are_prefixed_with_the_field(tmp_path):
         None,
         BuildingsSpec(file="b.geojson"),
         materials,
-        "feature 0: material 'glass' is not defined in scene.materials (defined: rigid, grass, brick)",
+        "features.0: material 'glass' is not defined in scene.materials (defined: rigid, grass, brick)",
         base_dir=tmp_path,
     )
 

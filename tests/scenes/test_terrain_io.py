@@ -15,14 +15,8 @@ from scipy.spatial import Delaunay
 from bentray.engine.errors import JobInputError
 from bentray.engine.surfaces import HeightGrid, TriangleSurface
 from bentray.scenes import terrain_io
-from bentray.scenes.geometry import (
-    box_pairs,
-    locate_points_2d,
-    normalise_polygon,
-    polygon_problem,
-    polygons_overlap,
-    terrain_height_at,
-)
+from bentray.scenes.geometry import box_pairs, locate_points_2d, terrain_height_at
+from bentray.scenes.gis_geometry import overlapping_pairs, polygon_from_rings
 from bentray.scenes.mesh_checks import triangles_intersect
 from bentray.scenes.terrain_io import (
     SceneFileError,
@@ -392,29 +386,32 @@ _SQUARE = [[[0, 0], [10, 0], [10, 10], [0, 10], [0, 0]]]
 @pytest.mark.parametrize(
     ("features", "reason"),
     [
-        ([_feature(_SQUARE + [[[2, 2], [4, 2], [4, 4], [2, 2]]], height=5)], "feature 0: the polygon has 1 hole(s)"),
+        (
+            [_feature(_SQUARE + [[[2, 2], [14, 2], [4, 4], [2, 2]]], height=5)],
+            "features.0: Self-intersection at (10, 2.8",
+        ),
         (
             [{"type": "Feature", "properties": {"height": 5}, "geometry": {"type": "MultiPolygon", "coordinates": []}}],
-            "MultiPolygon is not supported",
+            "MultiPolygon coordinates must be a non-empty list",
         ),
         (
             [{"type": "Feature", "properties": {}, "geometry": {"type": "Point", "coordinates": [0, 0]}}],
-            "geometry must be a Polygon, got 'Point'",
+            "geometry must be a Polygon or MultiPolygon, got 'Point'",
         ),
         (
             [_feature([[[0, 0], [10, 10], [10, 0], [0, 10], [0, 0]]], height=5, name="bow")],
-            "feature 0 ('bow'): the polygon is not simple: edge",
+            "features.0 ('bow'): Self-intersection at (5, 5)",
         ),
         ([_feature([[[0, 0], [10, 0], [0, 0], [10, 0]]], height=5)], "at least 3 distinct vertices, got 2"),
         ([_feature([[[0, 0], [5, 0], [10, 0]]], height=5)], "zero area"),
-        ([_feature(_SQUARE)], 'property "height" must be a number (metres), got None'),
+        ([_feature(_SQUARE)], 'give a "height" property (metres) or "building:levels"'),
         ([_feature(_SQUARE, height=True)], "got True"),
         ([_feature(_SQUARE, height=0)], "height 0 m must be > 0 and < 1000 m"),
         ([_feature(_SQUARE, height=1000)], "height 1000 m must be > 0 and < 1000 m"),
         ([_feature(_SQUARE, height=5, base_z="low")], '"base_z" must be a number (metres) or null'),
         (
             [_feature(_SQUARE, height=5), _feature(_SQUARE, height=5, material="glass")],
-            "feature 1: material 'glass' is not defined",
+            "features.1: material 'glass' is not defined",
         ),
         ([_feature([[[0, 0], [10, "a"], [0, 10]]], height=5)], "list of [x, y] positions with finite numbers"),
     ],
@@ -476,16 +473,19 @@ def test_locate_points_barycentric():
 
 
 def test_polygon_checks():
-    assert polygon_problem(normalise_polygon(np.array([[0, 0], [4, 0], [4, 3], [0, 3]]))) is None
-    spike = normalise_polygon(np.array([[0, 0], [4, 0], [8, 0], [4, 0.0], [4, 3]]))
-    assert "folds back" in polygon_problem(spike) or "not simple" in polygon_problem(spike)
-    touching = np.array([[0, 0], [4, 0], [4, 4], [2, 0], [0, 4.0]])  # vertex 3 touches edge 0
-    assert "not simple" in polygon_problem(touching)
-    square = np.array([[0, 0], [4, 0], [4, 4], [0, 4.0]])
-    assert polygons_overlap(square, square + [3, 3])
-    assert not polygons_overlap(square, square + [4, 0])  # shared wall
-    assert not polygons_overlap(square, square + [4, 4])  # common corner
-    assert polygons_overlap(square, square.copy())  # identical
-    assert polygons_overlap(square, np.array([[1, 1], [2, 1], [2, 2], [1, 2.0]]))  # contained
+    assert polygon_from_rings([[0, 0], [4, 0], [4, 3], [0, 3]])[1] is None
+    assert "Self-intersection at (8, 0)" in polygon_from_rings([[0, 0], [4, 0], [8, 0], [4, 0.0], [4, 3]])[1]
+    touching = [[0, 0], [4, 0], [4, 4], [2, 0], [0, 4.0]]  # vertex 3 touches edge 0
+    assert "Ring Self-intersection at (2, 0)" in polygon_from_rings(touching)[1]
+
+    def square(dx, dy, size=4.0):
+        return polygon_from_rings([[dx, dy], [dx + size, dy], [dx + size, dy + size], [dx, dy + size]])[0]
+
+    assert overlapping_pairs([square(0, 0), square(3, 3)]) == [(0, 1)]
+    assert overlapping_pairs([square(0, 0), square(4, 0)]) == []  # shared wall
+    assert overlapping_pairs([square(0, 0), square(4, 4)]) == []  # common corner
+    assert overlapping_pairs([square(0, 0), square(0, 0)]) == [(0, 1)]  # identical
+    assert overlapping_pairs([square(0, 0), square(1, 1, 1.0)]) == [(0, 1)]  # contained
     cross_a = np.array([[-5, -1], [5, -1], [5, 1], [-5, 1.0]])
-    assert polygons_overlap(cross_a, cross_a[:, ::-1])  # a plus sign: no vertex inside the other
+    plus = [polygon_from_rings(cross_a)[0], polygon_from_rings(cross_a[:, ::-1])[0]]
+    assert overlapping_pairs(plus) == [(0, 1)]  # a plus sign: no vertex inside the other
