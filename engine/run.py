@@ -79,9 +79,11 @@ def _describe_surfaces(surfaces: SceneSurfaces) -> str:
 
 
 def _wants_paths(job: Job) -> bool:
-    if job.rays.record_paths is not None:
-        return bool(job.rays.record_paths)
-    return "rays" in job.outputs or "paths" in job.outputs
+    """Record sampled paths? See :func:`bentray.scenes.cost.records_paths` (by default only for 'paths',
+    or for 'rays' up to DEFAULT_PATH_RAYS rays)."""
+    from bentray.scenes.cost import records_paths
+
+    return records_paths(job)
 
 
 @dataclass
