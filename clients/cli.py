@@ -1,13 +1,14 @@
 """The ``bentray`` command line.
 
-    bentray run JOB.json --out DIR [--threads N] [--dask ADDR]
+    bentray run JOB.json --out DIR [--threads N] [--dask ADDR] [--check]
     bentray sweep JOB.json --param PATH --values V1,V2,... --out DIR [--dask ADDR]
     bentray bench --out DIR [--quick] [--only NAME ...]
     bentray scenes [--resolution medium|high] [--json] [--job NAME]
 
-Exit status: 0 success; 2 invalid command line or job file (unreadable, invalid JSON or schema
-errors, printed one ``field.path: reason`` per line on stderr); 1 any other error during the run
-(one line on stderr; ``--traceback`` shows the full traceback instead).
+Exit status: 0 success; 2 invalid command line or job file (unreadable, invalid JSON, schema errors,
+scene, medium or cost-model problems and any input error the engine finds, printed one
+``field.path: reason`` per line on stderr); 1 any other error during the run (one line on stderr;
+``--traceback`` shows the full traceback instead); 143 SIGTERM (temporary folders removed).
 
 Subcommands register themselves in :data:`COMMANDS` (more to come: scenes, bench, serve, submit).
 Heavy imports (the engine, numba, pyvista) happen inside the command that needs them.
@@ -26,7 +27,23 @@ from bentray.engine.errors import BentrayError
 
 # Errors reported as one line with exit status 1: bentray's own (engine/errors.py) and the usual
 # input/resource failures. Anything else is a bug and keeps its traceback.
-_RUN_ERRORS: tuple[type[BaseException], ...] = (BentrayError, ValueError, OSError, RuntimeError, MemoryError)
+_RUN_ERRORS: tuple[type[BaseException], ...] = (
+    BentrayError,
+    ValueError,
+    OSError,
+    RuntimeError,
+    MemoryError,
+    OverflowError,
+    ArithmeticError,
+)
+
+
+class Terminated(BaseException):
+    """SIGTERM: unwinds like Ctrl-C so that staging folders beside --out are removed (exit 143)."""
+
+
+def _on_sigterm(signum: int, frame: object) -> None:
+    raise Terminated()
 
 
 class CommandError(Exception):
@@ -92,6 +109,24 @@ def _summary(job, outcome, written: list[Path], wall_s: float) -> str:
     return "\n".join(lines)
 
 
+def _check(job, job_path: Path) -> None:
+    """The checks the service runs at submit (scene, sources, medium, cost model with this machine's
+    memory): one ``field.path: reason`` line each, exit status 2."""
+    import numba
+
+    from bentray.scenes.cost import CostLimits, cost_problems, machine_memory_bytes
+    from bentray.scenes.job_checks import scene_problems
+
+    machine = machine_memory_bytes()
+    limits = CostLimits(
+        memory_bytes=int(0.8 * machine) if machine > 0 else CostLimits().memory_bytes,
+        threads=int(numba.get_num_threads()),
+    )
+    lines = scene_problems(job, job_path.absolute().parent) + cost_problems(job, limits)
+    if lines:
+        raise CommandError(f"{job_path}: invalid job ({len(lines)} error(s)):\n" + "\n".join(lines), code=2)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     job_path = Path(args.job)
     job = _load(job_path)
@@ -100,7 +135,12 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise CommandError(f"--out {out_dir} exists and is not a directory", code=2)
     if args.threads is not None:
         _set_threads(args.threads)
+    _check(job, job_path)
+    if args.check:
+        print(f"{job_path}: valid job ({job.n_rays:,} rays)")
+        return 0
 
+    from bentray.engine.errors import JobInputError
     from bentray.engine.run import run_job
     from bentray.engine.writers import write_outcome
 
@@ -110,7 +150,10 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         executor = DaskExecutor(args.dask)
     t0 = time.perf_counter()
-    outcome = run_job(job, job_path.absolute().parent, executor=executor)
+    try:
+        outcome = run_job(job, job_path.absolute().parent, executor=executor)
+    except JobInputError as exc:  # the job cannot run as asked: its lines name the field
+        raise CommandError(f"{job_path}: invalid job:\n{exc}", code=2) from None
     written = write_outcome(outcome, list(job.outputs), out_dir)
     print(_summary(job, outcome, written, time.perf_counter() - t0))
     return 0
@@ -121,6 +164,11 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
     p.add_argument("job", help="job file (JSON, see scenes/examples/)")
     p.add_argument("--out", required=True, help="output directory (created; files replaced all-or-nothing)")
     p.add_argument("--threads", type=_positive_int, default=None, help="numba threads (default: all)")
+    p.add_argument(
+        "--check",
+        action="store_true",
+        help="validate only (schema, scene, medium, cost model; the service's submit checks) and exit",
+    )
     p.add_argument(
         "--dask",
         metavar="ADDR",
@@ -262,8 +310,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     if getattr(args, "func", None) is None:
         parser.print_help(sys.stderr)
         return 2
+    import signal
+
+    try:
+        previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:  # not the main thread: leave signals alone
+        previous = None
     try:
         return int(args.func(args) or 0)
+    except Terminated:
+        print(f"bentray {args.command}: terminated", file=sys.stderr)
+        return 143
+    except RecursionError as exc:
+        if args.traceback:
+            raise
+        print(f"bentray {args.command}: error: input nests too deeply ({exc})", file=sys.stderr)
+        return 2
     except CommandError as exc:
         if args.traceback:
             raise
@@ -278,6 +340,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"bentray {args.command}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":
