@@ -12,6 +12,7 @@ Every call raises :class:`ServiceError` for an HTTP error status, with the serve
 
 from __future__ import annotations
 
+import builtins
 import json
 import sys
 import time
@@ -183,7 +184,7 @@ class BentrayClient:
     def get(self, job_id: str) -> JobInfo:
         return JobInfo.model_validate(self._request("GET", f"/v1/jobs/{job_id}").json())
 
-    def list(self, status: str | None = None, limit: int = 100) -> list[JobInfo]:
+    def list(self, status: str | None = None, limit: int = 100) -> builtins.list[JobInfo]:
         params: dict[str, Any] = {"limit": limit}
         if status is not None:
             params["status"] = status
@@ -220,7 +221,7 @@ class BentrayClient:
                 raise WaitTimeout(f"job {job_id} is still {info.status} ({info.stage}) after {timeout_s} s")
             time.sleep(poll_s)
 
-    def download(self, job_id: str, out_dir: str | Path, names: Sequence[str] | None = None) -> list[Path]:
+    def download(self, job_id: str, out_dir: str | Path, names: Sequence[str] | None = None) -> builtins.list[Path]:
         """Stream result files (default: all of a succeeded job) into ``out_dir``; returns the paths.
 
         Each file is written to a temporary name and renamed when complete.

@@ -20,6 +20,7 @@ import contextlib
 import multiprocessing
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from multiprocessing.connection import Connection
 from multiprocessing.process import BaseProcess
@@ -146,7 +147,11 @@ def _strip_folder(line: str, folder: str) -> str:
     return line.replace(str(Path(folder)) + "/", "")
 
 
-_STAGES = {"text": check_job_text, "scene": check_job_scene, "upload": check_upload_file}
+_STAGES: dict[str, Callable[..., dict[str, Any]]] = {
+    "text": check_job_text,
+    "scene": check_job_scene,
+    "upload": check_upload_file,
+}
 
 
 def _serve(conn: Connection) -> None:

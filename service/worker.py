@@ -126,12 +126,13 @@ def run_attempt(
     record = store.get(job_id)
     if record is None or record.status is not JobStatus.RUNNING or record.attempts != attempt:
         return
-    last = [0.0, ""]
+    last_time = [0.0]
+    last_stage = [""]
 
     def progress(stage: str, fraction: float) -> None:
         now = time.monotonic()
-        if stage != last[1] or now - last[0] >= PROGRESS_PERIOD_S:
-            last[0], last[1] = now, stage
+        if stage != last_stage[0] or now - last_time[0] >= PROGRESS_PERIOD_S:
+            last_time[0], last_stage[0] = now, stage
             store.set_progress(job_id, attempt, stage, 0.98 * fraction)  # the last 2 %: writing files
 
     try:
@@ -143,7 +144,8 @@ def run_attempt(
         from bentray.engine.writers import write_outcome
         from bentray.scenes.schema import parse_job_text
 
-        numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+        available = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
+        numba.set_num_threads(max(1, min(threads, available)))
         job = parse_job_text(record.job_json, origin=f"job {job_id}")
         kwargs: dict[str, Any] = {}
         if "progress" in inspect.signature(run_job).parameters:
@@ -363,7 +365,7 @@ class Supervisor:
             return False
         if sup["host"] == self.host and (sup["pid"] == os.getpid() or not _pid_alive(sup["pid"])):
             return True
-        return now - sup["heartbeat"] > STALE_SUPERVISOR_S
+        return bool(now - sup["heartbeat"] > STALE_SUPERVISOR_S)
 
     def recover_orphans(self) -> None:
         """Queue again (once) or fail the running jobs of supervisors that are gone."""
