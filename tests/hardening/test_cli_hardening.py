@@ -41,6 +41,14 @@ def test_huge_footprint_exits_2_within_a_second(tmp_path, capsys):
     assert rc == 2 and "scene.buildings.footprints.0.polygon.0.0: " in err
 
 
+def test_huge_footprint_does_not_hang_the_console_command(tmp_path):
+    """Without pytest's warnings-as-errors the overflow used to spin in the overlap check forever."""
+    (tmp_path / "job.json").write_text(json.dumps(huge_footprint_job()))
+    cmd = [sys.executable, "-m", "bentray.clients.cli", "run", str(tmp_path / "job.json"), "--out", str(tmp_path / "o")]
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "scene.buildings.footprints.0.polygon.0.0: " in proc.stderr
+
+
 @pytest.mark.parametrize(
     "text, field",
     [
