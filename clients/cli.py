@@ -51,6 +51,16 @@ def _on_sigterm(signum: int, frame: object) -> None:
     raise Terminated()
 
 
+DASK_SCHEDULER_ENV = "BENTRAY_DASK_SCHEDULER"  # default of --dask (bentray run, bentray sweep)
+
+
+def dask_address(flag: str | None) -> str | None:
+    """The Dask scheduler for ``--dask``: the flag, else ``BENTRAY_DASK_SCHEDULER``, else None (this process)."""
+    import os
+
+    return (flag or "").strip() or os.environ.get(DASK_SCHEDULER_ENV, "").strip() or None
+
+
 class CommandError(Exception):
     """A user-facing failure of a command: printed as one line, exit status ``code``."""
 
@@ -146,14 +156,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         return 0
 
     from bentray.engine.errors import JobInputError
+    from bentray.engine.executors import make_executor
     from bentray.engine.run import run_job
     from bentray.engine.writers import write_outcome
 
-    executor = None
-    if args.dask:
-        from bentray.engine.dask_executor import DaskExecutor
-
-        executor = DaskExecutor(args.dask)
+    executor = make_executor(dask_address(args.dask))
     t0 = time.perf_counter()
     try:
         outcome = run_job(job, job_path.absolute().parent, executor=executor)

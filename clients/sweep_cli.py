@@ -118,7 +118,8 @@ def field_summary(outcome: Any) -> tuple[str, float]:
 
 def _run_one(spec: dict[str, Any], base_dir: str | None) -> Any:
     """Validate and run one job with the local executor (in this process or on a Dask worker)."""
-    from bentray.engine.run import LocalExecutor, run_job
+    from bentray.engine.executors import LocalExecutor
+    from bentray.engine.run import run_job
     from bentray.scenes.schema import Job
 
     t0 = time.perf_counter()
@@ -241,16 +242,14 @@ def write_sweep_csv(param: str, rows: list[SweepRow], path: Path) -> None:
 
 
 def cmd_sweep(args: argparse.Namespace) -> int:
-    import os
-
-    from bentray.clients.cli import CommandError, _load
+    from bentray.clients.cli import CommandError, _load, dask_address
 
     job_path = Path(args.job)
     _load(job_path)  # unreadable or invalid base job: exit 2 with the field errors
     out_dir = Path(args.out)
     if out_dir.exists() and not out_dir.is_dir():
         raise CommandError(f"--out {out_dir} exists and is not a directory", code=2)
-    dask = args.dask or os.environ.get("BENTRAY_DASK_SCHEDULER", "").strip() or None
+    dask = dask_address(args.dask)
     t0 = time.perf_counter()
     try:
         rows = run_sweep(

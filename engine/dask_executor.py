@@ -1,14 +1,15 @@
 """Scale-out on Dask distributed: one task per ray batch, the trace plan scattered once.
 
-Selected by ``BENTRAY_DASK_SCHEDULER=tcp://host:8786`` (``run.default_executor``) or ``--dask ADDR``
-(``bentray run``, ``bentray sweep``); without either the local executor runs the batches in-process.
+Selected by the caller: ``--dask ADDR`` or ``BENTRAY_DASK_SCHEDULER=tcp://host:8786`` (read by ``bentray run``,
+``bentray sweep`` and the service settings, never by the engine; ``executors.make_executor``); without
+either the local executor runs the batches in-process.
 
 How a job runs here: the client (``bentray run`` or the service worker) builds the profile, scene and
-media mesh once and packs them into a :class:`~bentray.engine.run.TracePlan`; :meth:`DaskExecutor.run_batches`
+media mesh once and packs them into a :class:`~bentray.engine.trace_plan.TracePlan`; :meth:`DaskExecutor.run_batches`
 scatters the plan to every worker (``broadcast=True``: one copy per worker, never rebuilt or re-sent per
 batch) and submits one ``trace_batch`` task per ray range (``TracePlan.batches``: per source, then
 blocks of ``solver.batch_rays`` launch directions). Each finished batch is reported through ``on_batch``
-(progress per batch). ``run.combine_batches`` then sums the partial fields in batch order, the same order
+(progress per batch). ``batches.combine_batches`` then sums the partial fields in batch order, the same order
 as a local run.
 
 Failures: a task whose worker dies is rescheduled by the scheduler on another worker; a task that raises
@@ -42,7 +43,8 @@ from typing import Any
 import numba
 import numpy as np
 
-from bentray.engine.run import BatchResult, InOrderSum, TracePlan, trace_batch
+from bentray.engine.batches import BatchResult, InOrderSum, trace_batch
+from bentray.engine.trace_plan import TracePlan
 
 try:  # optional dependency: pip install "bentray[dask]"
     from distributed import Client, as_completed, get_worker

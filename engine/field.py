@@ -81,7 +81,7 @@ class FieldArrays:
 
 
 def launch_solid_angles(elevation_deg: np.ndarray, azimuth_deg: np.ndarray) -> np.ndarray:
-    """Omega / (4 pi) per ray of the launch grid, ordered elevation-major like run.launch_fan.
+    """Omega / (4 pi) per ray of the launch grid, ordered elevation-major like stages.launch_fan.
 
     elevation_deg (n_el,), azimuth_deg (n_az,), evenly spaced, each with at least 2 values.
     """

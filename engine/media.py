@@ -136,7 +136,7 @@ def build_media(
     """Build the representation the job needs for the traced quantity of ``curve``.
 
     wind : (code, params) of engine.wind, or None. The mesh carries the profile alone (the kernel adds
-    u . e per ray); its sizing uses the downwind effective medium c + |u| (physics.md section 6).
+    u . e per ray); its sizing uses the downwind effective medium c + |u| (docs/physics.md §6).
     """
     lo = np.asarray(domain_min, float)
     hi = np.asarray(domain_max, float)
@@ -167,13 +167,10 @@ def build_media(
         else:
             rule, tol, d_min, d_max = _sizing_params(solver, "slabs", hi[2] - lo[2])
             if rule == "gradient":
-                n_at_z = lambda z: (
-                    size_n(column(z))
-                    if size_n is not None
-                    else profile.quantity(  # noqa: E731
-                        "n", column(z)
-                    )
-                )
+
+                def n_at_z(z: np.ndarray) -> np.ndarray:
+                    return size_n(column(z)) if size_n is not None else profile.quantity("n", column(z))
+
                 z_levels = gradient_layers(lo[2], hi[2], n_at_z, epsilon=tol, d_min=d_min, d_max=d_max)
             else:
                 z_levels = curvature_layers(lo[2], hi[2], size_m_at_z, delta=tol, d_min=d_min, d_max=d_max)

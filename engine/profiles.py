@@ -1,4 +1,4 @@
-"""Media profiles: the sound speed c(x, y, z) that the media meshes sample (physics.md section 7).
+"""Media profiles: the sound speed c(x, y, z) that the media meshes sample (docs/physics.md §7).
 
 Frames and units: world frame, metres, z up, ground at z = 0. Sound speed ``c`` in m/s, temperature in
 kelvin, wavenumbers in rad/m. The acoustic refractive index is ``n = c_ref / c`` (dimensionless) with a
@@ -15,7 +15,7 @@ Each profile has a *native* quantity that it defines in closed form (``c`` for m
 by the chain rule, so a native quantity is returned exactly as defined (``LinearN2.quantity("n2")`` is
 linear in z to the last bit of one multiply-add).
 
-Kinds (``Profile.kind``) and constructor defaults (the paper's values, physics.md section 7):
+Kinds (``Profile.kind``) and constructor defaults (the paper's values, docs/physics.md §7):
 
 ==================  ==============================================================================
 homogeneous         ``Homogeneous(c0=340)``
@@ -68,7 +68,7 @@ __all__ = [
     "standard_temperature",
 ]
 
-# Ratio of specific heats and specific gas constant of dry air (physics.md section 7).
+# Ratio of specific heats and specific gas constant of dry air (docs/physics.md §7).
 GAMMA_AIR = 1.4
 R_AIR = 287.05  # J/(kg K)
 # 1976 US Standard Atmosphere, troposphere: T_std(z) = T_SEA_LEVEL_K + LAPSE_RATE_K_PER_M * z.
@@ -241,7 +241,7 @@ class Profile:
         """Effective sound speed (m/s) for rays launched along a horizontal azimuth.
 
         With wind ``u(x)`` (m/s) the standard effective-sound-speed approximation is
-        ``c_eff = c + u . e`` with ``e`` the unit horizontal launch azimuth (physics.md section 7,
+        ``c_eff = c + u . e`` with ``e`` the unit horizontal launch azimuth (docs/physics.md §7,
         A-UW/A-DW). No profile carries wind yet, so this returns :meth:`sound_speed` unchanged and
         allocates no wind arrays; ``azimuth_unit`` (shape (3,) or (..., 3), world frame) is only
         checked for shape. Wind profiles will override this method.

@@ -53,6 +53,8 @@ class TraceResult:
     # (n, R) incidence cosine |T.m| and face material of each ray's first R reflections (field runs only)
     reflection_cos: np.ndarray | None = None
     reflection_material: np.ndarray | None = None
+    # (n, 13) final paraxial state when asked for: X_el, X_az (m/rad), P_el, P_az (1/rad; p = n T), |p| = n
+    paraxial: np.ndarray | None = None
 
     @property
     def n_rays(self) -> int:
@@ -136,6 +138,7 @@ def concat_traces(parts: list[TraceResult]) -> TraceResult:
         steps=cat("steps"),  # type: ignore[arg-type]
         reflection_cos=cat("reflection_cos"),
         reflection_material=cat("reflection_material"),
+        paraxial=cat("paraxial"),
     )
 
 

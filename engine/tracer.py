@@ -5,6 +5,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from bentray.engine.beam_field import BeamBuffers, no_beam_args
 from bentray.engine.constants import CURVE_CODES
 from bentray.engine.field_buffers import REFLECTION_RECORD_CAP, FieldBuffers, no_field_tuple
 from bentray.engine.kernels.traverse import trace_rays
@@ -48,8 +49,9 @@ def trace(
     max_reflections: int,
     max_steps: int = 10_000_000,
     path_samples: int = 0,
-    field: FieldBuffers | None = None,
+    field: FieldBuffers | BeamBuffers | None = None,
     wind: tuple[int, np.ndarray] | None = None,
+    paraxial: bool = False,
 ) -> TraceResult:
     """Trace rays through ``mesh`` with the given curve kind.
 
@@ -61,6 +63,8 @@ def trace(
     wind : (code, params) of engine.wind.wind_spec, or None (no wind: code 0 and an empty array go to the
         kernel). With wind each ray traces the effective medium c + u(x) . e, e its unit horizontal launch
         azimuth (physics.md section 7); ``mesh`` carries c alone (no per-cell wind arrays).
+    paraxial : also return each ray's final paraxial state (TraceResult.paraxial, (n, 13): X_el, X_az,
+        P_el, P_az, |p|; parabolic curve only; docs/physics.md §10).
     Returns a TraceResult with launch angles left at NaN (the caller fills them in).
     """
     origins, directions, start_cells = ray_inputs(curve, origins, directions, start_cells, max_time_s)
@@ -75,7 +79,20 @@ def trace(
     dt_sample = max_time_s / max(path_samples, 1)
     out_state = np.zeros((n, 8))
     out_counts = np.zeros((n, 6), dtype=np.int64)
-    if field is not None:
+    beam = no_beam_args()
+    if paraxial and curve != "parabolic":
+        raise ValueError("paraxial rays are built for the parabolic curve")
+    out_par = np.full((n if paraxial else 0, 13), np.nan)
+    if isinstance(field, BeamBuffers):
+        if field.weights.shape[0] != n:
+            raise ValueError("field weights must have one row per ray")
+        if curve != "parabolic":
+            raise ValueError("beam fields need the parabolic curve (paraxial rays are built for it)")
+        fld, f_weights = no_field_tuple(n)
+        n_slots = field.n_slots
+        beam = field.kernel_args()
+        refl_cap = REFLECTION_RECORD_CAP
+    elif field is not None:
         if field.weights.shape[0] != n:
             raise ValueError("field weights must have one row per ray")
         fld, f_weights, n_slots = field.kernel_tuple(), field.weights, field.n_slots
@@ -116,6 +133,8 @@ def trace(
         n_slots,
         refl_cos,
         refl_mat,
+        *beam,
+        out_par,
         out_state,
         out_counts,
     )
@@ -143,4 +162,5 @@ def trace(
         steps=out_counts[:, 4].copy(),
         reflection_cos=refl_cos if field is not None else None,
         reflection_material=refl_mat if field is not None else None,
+        paraxial=out_par if paraxial else None,
     )

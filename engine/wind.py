@@ -1,4 +1,4 @@
-"""Analytic wind fields and the effective sound speed per ray azimuth (physics.md section 7).
+"""Analytic wind fields and the effective sound speed per ray azimuth (docs/physics.md §7).
 
 Wind enters the traversal through the standard effective-sound-speed approximation
 
@@ -62,7 +62,7 @@ __all__ = [
     "effective_quantity",
 ]
 
-KARMAN = 0.41  # von Karman constant of the log law (physics.md section 7)
+KARMAN = 0.41  # von Karman constant of the log law (docs/physics.md §7)
 WIND_NONE = 0
 WIND_LOG = 1
 WIND_RIDGE = 2
@@ -218,7 +218,7 @@ def sizing_quantity(
     """Traced quantity of the downwind effective medium c + |u(x)| at points (N, 3), for mesh sizing.
 
     The downwind ray sees the whole wind speed, so its medium carries the largest wind gradient and
-    curvature (physics.md section 6: size on the worst case over azimuth). quantity : "c", "n" (c_ref/c)
+    curvature (docs/physics.md §6: size on the worst case over azimuth). quantity : "c", "n" (c_ref/c)
     or "n2". Without wind the callable returns the profile's own quantity.
     """
     code, params = check_wind(wind)

@@ -11,7 +11,7 @@ import math
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from bentray.scenes.bounds import MAX_LENGTH_M, LengthVec3, Vec3
 
@@ -36,7 +36,13 @@ class FieldSpec(BaseModel):
     frequency from arrival amplitudes and exact travel times; one source). ``humidity_percent``,
     ``temperature_c`` and ``pressure_kpa`` set ISO 9613-1 absorption (``absorption`` false: none).
     ``receiver_height_m``: height of the preview's horizontal slice above the ground.
-    ``sample_fraction``: sub-interval length along the curves as a fraction of the smallest spacing.
+    ``sample_fraction``: sub-interval length along the curves as a fraction of the smallest spacing
+    (``method`` "voxels" only).
+    ``method``: "beams" (default: geometric beams around paraxial rays, each ray's own spreading; modes
+    coherent, incoherent, semicoherent) or "voxels" (the older ray-density estimate per voxel, kept as
+    the bench's reference point; coherent and incoherent). ``chord_m``: beam chord length along the
+    rays (default twice the smallest spacing within [1, 10] m); ``beam_min_width_m``: smallest beam
+    half-width at caustics (default half a wavelength at the bands' geometric-mean frequency).
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -45,7 +51,10 @@ class FieldSpec(BaseModel):
     spacing: LengthVec3
     shape: tuple[_Count, _Count, _Count]
     frequencies_hz: list[float] = Field(default_factory=lambda: list(OCTAVE_BANDS_HZ), min_length=1, max_length=64)
-    mode: Literal["incoherent", "coherent"] = "incoherent"
+    mode: Literal["incoherent", "coherent", "semicoherent"] = "incoherent"
+    method: Literal["beams", "voxels"] = "beams"
+    chord_m: float | None = Field(default=None, ge=0.05, le=100.0)
+    beam_min_width_m: float | None = Field(default=None, ge=1e-3, le=100.0)
     humidity_percent: float = Field(default=70.0, ge=0.0, le=100.0)
     temperature_c: float = Field(default=15.0, ge=-50.0, le=60.0)
     pressure_kpa: float = Field(default=101.325, gt=0.0, le=200.0)
@@ -74,6 +83,12 @@ class FieldSpec(BaseModel):
                 f"{MAX_FIELD_POINTS:,} per job (split the map into tiles)"
             )
         return value
+
+    @model_validator(mode="after")
+    def _method_modes(self) -> FieldSpec:
+        if self.method == "voxels" and self.mode == "semicoherent":
+            raise ValueError("mode 'semicoherent' needs method 'beams'")
+        return self
 
     @field_validator("frequencies_hz")
     @classmethod

@@ -6,7 +6,9 @@ air, a grid with a 10x checkerboard is a medium the curve model was never meant 
 profile field to change, instead of being traced to a "successful" nonsense result. The range is that of
 air from -150 deg C to +1,000 deg C with margin (c = 20.05 sqrt(T): 222 .. 714 m/s), widened so that
 the light-validation mirages (c = c_ref / n with c_ref = 340) and steep textbook gradients still pass.
-A wind must stay well below the sound speed: ``|u| <= MAX_MACH * c`` at every sampled point.
+Within the domain the ratio of the largest to the smallest sound speed is at most :data:`MAX_CONTRAST`
+(so a 10x checkerboard of speeds that are each in range is refused too). A wind must stay well below the
+sound speed: ``|u| <= MAX_MACH * c`` at every sampled point.
 
 Where the mesh samples: a lattice of :data:`LATTICE` points per axis over the domain box (edges
 included, plus the hot spot centre), at the heights the profile is evaluated at (the height above the
@@ -28,6 +30,7 @@ __all__ = ["C_MAX_M_S", "C_MIN_M_S", "LATTICE", "MAX_MACH", "media_problems"]
 C_MIN_M_S = 100.0
 C_MAX_M_S = 1000.0
 MAX_MACH = 0.3  # |u| / c: beyond this the effective-sound-speed model (c + u . e) is no longer good
+MAX_CONTRAST = 3.0  # max c / min c over the domain: air from -150 deg C to +1,000 deg C is 3.2x
 LATTICE = 17
 
 # The parameter named when the speed at the reference point is wrong, and when its variation is.
@@ -114,6 +117,13 @@ def media_problems(job: Any, base_dir: str | Path | None = None, prefix: str = "
                 f"{C_MIN_M_S:g} .. {C_MAX_M_S:g} m/s (first: {first:.6g} m/s); bentray traces air"
             )
             return problems
+        if grid_c.max() > MAX_CONTRAST * grid_c.min():
+            field = "path" if spec.path is not None else "c"
+            problems.append(
+                f"{prefix}.{field}: the grid's sound speed ranges from {grid_c.min():.6g} to {grid_c.max():.6g} m/s, "
+                f"more than {MAX_CONTRAST:g}x; air in any weather stays within that"
+            )
+            return problems
     bad = ~np.isfinite(c) | (c < C_MIN_M_S) | (c > C_MAX_M_S)
     if np.any(bad):
         k = int(np.argmax(bad))
@@ -129,6 +139,17 @@ def media_problems(job: Any, base_dir: str | Path | None = None, prefix: str = "
             f"{prefix}.{field}: the {kind} profile's sound speed is {float(c[k]):.6g} m/s at {heights} "
             f"{_where(points[k])}; it must stay within {C_MIN_M_S:g} .. {C_MAX_M_S:g} m/s everywhere in the "
             "domain (bentray traces air)"
+        )
+        return problems
+    if c.max() > MAX_CONTRAST * c.min():
+        field = (
+            _table_field(spec)
+            if isinstance(spec, TableSpec)
+            else _SLOPE_FIELD.get(kind, _LEVEL_FIELD.get(kind, "kind"))
+        )
+        problems.append(
+            f"{prefix}.{field}: the {kind} profile's sound speed ranges from {c.min():.6g} to {c.max():.6g} m/s in "
+            f"the domain, more than {MAX_CONTRAST:g}x; air in any weather stays within that"
         )
         return problems
     if job.wind is not None:

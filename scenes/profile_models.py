@@ -2,7 +2,7 @@
 
 A profile in a job file is a JSON object with a ``kind`` discriminator and the constructor parameters of
 the matching :mod:`bentray.engine.profiles` class, e.g. ``{"kind": "log", "c0": 340.0, "b": 1.0,
-"z_g": 1.0}``. Defaults are the paper's values (physics.md section 7). Units: metres, m/s, kelvin,
+"z_g": 1.0}``. Defaults are the paper's values (docs/physics.md §7). Units: metres, m/s, kelvin,
 rad/m. Validators only check (they never rewrite values); unknown keys are rejected.
 """
 

@@ -2,7 +2,7 @@
 
 A wind is a JSON object beside ``profile`` with a ``kind`` discriminator, e.g. ``{"kind": "log",
 "u_star": 0.5, "z_g": 0.1, "direction_deg": 0}``; it combines with any profile through the effective
-sound speed ``c_eff = c + u . e`` per ray azimuth (physics.md section 7, engine/wind.py). Units: metres,
+sound speed ``c_eff = c + u . e`` per ray azimuth (docs/physics.md §7, engine/wind.py). Units: metres,
 m/s, degrees. ``direction_deg`` is the direction the wind blows TOWARD, counter-clockwise from +x
 (0: toward +x, so rays launched along +x travel downwind). Validators only check; unknown keys and
 NaN/inf are rejected.

@@ -19,6 +19,7 @@ Environment variables (all optional):
 | ``BENTRAY_MAX_RAY_STEPS`` | 5e10 | estimated cell crossings of one job (scenes/cost.py) |
 | ``BENTRAY_VALIDATION_SECONDS`` | 10 | time limit of submit-time validation (its own process); longer -> 422 |
 | ``BENTRAY_RETRY_AFTER_SECONDS`` | 30 | ``Retry-After`` of a 429 (queue full) |
+| ``BENTRAY_DASK_SCHEDULER`` | none | Dask scheduler (``tcp://host:8786``) for the ray batches (none: in-process) |
 
 No key configured means a single local user: the server then refuses to bind anything but a
 loopback address (see :func:`check_bind_host`).
@@ -70,6 +71,8 @@ class Settings(BaseModel):
     max_job_seconds: float = Field(default=3600.0, gt=0)
     retention_days: float = Field(default=7.0, gt=0)
     workers: int = Field(default=1, ge=0, le=256)
+    # Dask scheduler address for the ray batches of every job (None: the job process runs them itself).
+    dask_scheduler: str | None = None
     # A job whose worker died (or whose server stopped) runs again once; after that it fails.
     max_attempts: int = Field(default=2, ge=1, le=10)
     # Job processes run at this niceness so that the API keeps answering while they hold the CPU.
@@ -141,6 +144,7 @@ class Settings(BaseModel):
             "BENTRAY_MAX_RAY_STEPS": "max_ray_steps",
             "BENTRAY_VALIDATION_SECONDS": "validation_seconds",
             "BENTRAY_RETRY_AFTER_SECONDS": "retry_after_seconds",
+            "BENTRAY_DASK_SCHEDULER": "dask_scheduler",
         }
         for var, field in names.items():
             raw = env.get(var, "").strip()

@@ -140,6 +140,8 @@ def check_upload_file(path: str, kind: str) -> dict[str, Any]:
         return {"ok": True, "kind": check_upload(Path(path), kind)}  # type: ignore[arg-type]
     except ValueError as exc:
         return _error([f"file: {Path(path).name}: {exc}"], "invalid_file")
+    except RecursionError:
+        return _error([f"file: {Path(path).name}: the file nests too deeply"], "invalid_file")
 
 
 def _strip_folder(line: str, folder: str) -> str:

@@ -2,8 +2,8 @@
 
 Each attempt of a job runs in its own child *process* (multiprocessing ``spawn`` context: the engine
 holds the CPU and numba's threads, so never a thread of the API). The child parses the stored job
-JSON, calls :func:`bentray.engine.run.run_job` (which picks its ray-batch executor from configuration:
-local, or Dask when ``BENTRAY_DASK_SCHEDULER`` is set) with a progress callback that writes stage and
+JSON, calls :func:`bentray.engine.run.run_job` (ray batches local, or on Dask when the settings name a
+scheduler: ``BENTRAY_DASK_SCHEDULER``) with a progress callback that writes stage and
 fraction to the store, and writes the result files with ``write_outcome``. Cancel = terminate that
 child (SIGTERM, then SIGKILL after :data:`TERMINATE_GRACE_S`).
 
@@ -109,7 +109,15 @@ def _float_timings(report: dict[str, Any]) -> dict[str, float]:
 
 
 def run_attempt(
-    db_path: str, job_id: str, attempt: int, inputs: str, results: str, threads: int, nice: int, parent_pid: int
+    db_path: str,
+    job_id: str,
+    attempt: int,
+    inputs: str,
+    results: str,
+    threads: int,
+    nice: int,
+    parent_pid: int,
+    dask_scheduler: str | None = None,
 ) -> None:
     """Child-process entry: run one attempt of a job and record its outcome in the store.
 
@@ -140,6 +148,7 @@ def run_attempt(
 
         import numba
 
+        from bentray.engine.executors import make_executor
         from bentray.engine.run import run_job
         from bentray.engine.writers import write_outcome
         from bentray.scenes.schema import parse_job_text
@@ -147,7 +156,7 @@ def run_attempt(
         available = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
         numba.set_num_threads(max(1, min(threads, available)))
         job = parse_job_text(record.job_json, origin=f"job {job_id}")
-        kwargs: dict[str, Any] = {}
+        kwargs: dict[str, Any] = {"executor": make_executor(dask_scheduler)}
         if "progress" in inspect.signature(run_job).parameters:
             kwargs["progress"] = progress
         outcome = run_job(job, Path(inputs), **kwargs)
@@ -302,6 +311,7 @@ class Supervisor:
             self._threads_per_job,
             self.settings.worker_nice,
             os.getpid(),
+            self.settings.dask_scheduler,
         )
         process = self._ctx.Process(target=run_attempt, args=args, name=f"bentray-job-{record.id[:8]}", daemon=False)
         process.start()

@@ -1,4 +1,4 @@
-"""Atmospheric absorption of pure tones, ISO 9613-1:1993 (physics.md section 8).
+"""Atmospheric absorption of pure tones, ISO 9613-1:1993 (docs/physics.md §8).
 
 The attenuation coefficient ``alpha`` (dB per metre of path) follows the standard's closed form: the
 classical and rotational term plus the vibrational relaxation of oxygen and nitrogen, with relaxation

@@ -1,4 +1,4 @@
-"""Ground impedance and reflection coefficients for a locally reacting ground (physics.md section 8).
+"""Ground impedance and reflection coefficients for a locally reacting ground (docs/physics.md §8).
 
 Time convention ``exp(-i w t)`` throughout: a wave travelling a distance R carries ``exp(+i k R)``, and a
 passive porous ground has ``Re Z > 0`` and ``Im Z > 0`` (a stiffness-like surface impedance).
@@ -322,6 +322,49 @@ DEFAULT_N_COS = 193
 DEFAULT_N_R = 321
 
 
+def build_q_table(
+    frequencies_hz: Sequence[float],
+    flow_resistivities: Sequence[float | None],
+    n_cos: int = DEFAULT_N_COS,
+    n_r: int = DEFAULT_N_R,
+    r_min: float = 0.5,
+    r_max: float = 2.0e4,
+    c: float = DEFAULT_SOUND_SPEED,
+) -> Q2Table:
+    """Tabulate the complex spherical-wave coefficient Q for each material and band.
+
+    Same nodes and arguments as :func:`build_q2_table`; the table is (n_mat, n_freq, n_cos, n_r, 2)
+    float64 with Re Q in [..., 0] and Im Q in [..., 1] (rigid materials: exactly 1 + 0i). The beam
+    field multiplies these per reflection (coherent sums need the phase of Q, not only |Q|^2).
+    """
+    freqs = np.asarray(frequencies_hz, dtype=np.float64)
+    if freqs.ndim != 1 or freqs.size == 0:
+        raise ValueError("frequencies_hz must be a non-empty 1-D sequence")
+    if len(flow_resistivities) == 0:
+        raise ValueError("flow_resistivities must list at least one material")
+    if n_cos < 2 or n_r < 2:
+        raise ValueError("n_cos and n_r must be >= 2")
+    if not (0.0 < r_min < r_max and math.isfinite(r_max)):
+        raise ValueError("need 0 < r_min < r_max < inf")
+    u_min = math.log(COS_EPS)
+    u_step = (math.log(1.0 + COS_EPS) - u_min) / (n_cos - 1)
+    ln_r_min = math.log(r_min)
+    ln_r_step = (math.log(r_max) - ln_r_min) / (n_r - 1)
+    cos_nodes = np.clip(np.exp(u_min + np.arange(n_cos) * u_step) - COS_EPS, 0.0, 1.0)
+    cos_nodes[0], cos_nodes[-1] = 0.0, 1.0
+    r_nodes = np.exp(ln_r_min + np.arange(n_r) * ln_r_step)
+    table = np.empty((len(flow_resistivities), freqs.size, n_cos, n_r, 2), dtype=np.float64)
+    for m, sigma in enumerate(flow_resistivities):
+        z_all = ground_impedance(freqs, sigma)
+        for b in range(freqs.size):
+            k = _wavenumber(freqs[b], c)
+            q = spherical_wave_coefficient(z_all[b], cos_nodes[:, None], k, r_nodes[None, :])
+            table[m, b, :, :, 0] = q.real
+            table[m, b, :, :, 1] = q.imag
+    grid = np.array([u_min, u_step, ln_r_min, ln_r_step, COS_EPS], dtype=np.float64)
+    return Q2Table(table=table, grid=grid)
+
+
 def build_q2_table(
     frequencies_hz: Sequence[float],
     flow_resistivities: Sequence[float | None],
@@ -346,31 +389,40 @@ def build_q2_table(
     -------
     :class:`Q2Table` (table (n_mat, n_freq, n_cos, n_r) float64 of |Q|^2, grid (5,) float64).
     """
-    freqs = np.asarray(frequencies_hz, dtype=np.float64)
-    if freqs.ndim != 1 or freqs.size == 0:
-        raise ValueError("frequencies_hz must be a non-empty 1-D sequence")
-    if len(flow_resistivities) == 0:
-        raise ValueError("flow_resistivities must list at least one material")
-    if n_cos < 2 or n_r < 2:
-        raise ValueError("n_cos and n_r must be >= 2")
-    if not (0.0 < r_min < r_max and math.isfinite(r_max)):
-        raise ValueError("need 0 < r_min < r_max < inf")
-    u_min = math.log(COS_EPS)
-    u_step = (math.log(1.0 + COS_EPS) - u_min) / (n_cos - 1)
-    ln_r_min = math.log(r_min)
-    ln_r_step = (math.log(r_max) - ln_r_min) / (n_r - 1)
-    cos_nodes = np.clip(np.exp(u_min + np.arange(n_cos) * u_step) - COS_EPS, 0.0, 1.0)
-    cos_nodes[0], cos_nodes[-1] = 0.0, 1.0
-    r_nodes = np.exp(ln_r_min + np.arange(n_r) * ln_r_step)
-    table = np.empty((len(flow_resistivities), freqs.size, n_cos, n_r), dtype=np.float64)
-    for m, sigma in enumerate(flow_resistivities):
-        z_all = ground_impedance(freqs, sigma)
-        for b in range(freqs.size):
-            k = _wavenumber(freqs[b], c)
-            q = spherical_wave_coefficient(z_all[b], cos_nodes[:, None], k, r_nodes[None, :])
-            table[m, b] = q.real**2 + q.imag**2
-    grid = np.array([u_min, u_step, ln_r_min, ln_r_step, COS_EPS], dtype=np.float64)
-    return Q2Table(table=table, grid=grid)
+    q = build_q_table(frequencies_hz, flow_resistivities, n_cos, n_r, r_min, r_max, c)
+    return Q2Table(table=q.table[..., 0] ** 2 + q.table[..., 1] ** 2, grid=q.grid)
+
+
+@nb.njit(**NJIT_FLAGS)
+def q_lookup(table: np.ndarray, grid: np.ndarray, mat: int, band: int, cos_theta: float, r: float):
+    """Bilinear interpolation of complex Q from :func:`build_q_table` (same axes as :func:`q2_lookup`).
+
+    Returns (Re Q, Im Q). mat and band must index the table (the caller checks them once per job).
+    """
+    n_cos = table.shape[2]
+    n_r = table.shape[3]
+    c = min(max(cos_theta, 0.0), 1.0)
+    fu = (math.log(c + grid[4]) - grid[0]) / grid[1]
+    fu = min(max(fu, 0.0), n_cos - 1.0)
+    i = min(int(fu), n_cos - 2)
+    tu = fu - i
+    fr = (math.log(r) - grid[2]) / grid[3] if r > 0.0 else 0.0
+    fr = min(max(fr, 0.0), n_r - 1.0)
+    j = min(int(fr), n_r - 2)
+    tr = fr - j
+    out_re = 0.0
+    out_im = 0.0
+    for part in range(2):
+        a = table[mat, band, i, j, part] + (table[mat, band, i, j + 1, part] - table[mat, band, i, j, part]) * tr
+        b = (
+            table[mat, band, i + 1, j, part]
+            + (table[mat, band, i + 1, j + 1, part] - table[mat, band, i + 1, j, part]) * tr
+        )
+        if part == 0:
+            out_re = a + (b - a) * tu
+        else:
+            out_im = a + (b - a) * tu
+    return out_re, out_im
 
 
 @nb.njit(**NJIT_FLAGS)

@@ -1,8 +1,8 @@
 """Explicit one-step integrators of the ray equations (Euler, step-doubling Euler, RK4, Dormand-Prince 5(4)).
 
-Ray ODE (physics.md section 1), ``d/ds (n dx/ds) = grad n``, ``dt/ds = n / c_ref``, written in the
+Ray ODE (docs/physics.md §1), ``d/ds (n dx/ds) = grad n``, ``dt/ds = n / c_ref``, written in the
 parameter sigma with ``d sigma = ds / n`` and ``p = n dx/ds`` (the analytic parabolic curve's
-parameter, physics.md section 2). State ``y`` (NY = 8,) float64:
+parameter, docs/physics.md §2). State ``y`` (NY = 8,) float64:
 
     y[0:3] x (m)   y[3:6] p (dimensionless, |p| = n)   y[6] t (s)   y[7] s (m, arc length)
 

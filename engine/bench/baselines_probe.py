@@ -1,6 +1,6 @@
 """Error against run time for the numerical baselines and the analytic tracer on stratified cases.
 
-Cases (:data:`CASES`; physics.md section 7): V-IM, V-SM (mirages, light; 0.3 s at c_ref = 340 m/s, about
+Cases (:data:`CASES`; docs/physics.md §7): V-IM, V-SM (mirages, light; 0.3 s at c_ref = 340 m/s, about
 100 m of range, domain [-50, 200] x [-50, 50] x [0, 200] m) and A-LU, A-LD (log profile, b = -1 / +1,
 z_g = 1 m; 10 s, domain [-50, 4000] x [-50, 50] x [0, 2600] m); source at 1.5 m, elevations -45..45
 degrees (91 rays; 13 in quick mode), azimuth 0, flat reflecting ground, at most 50 reflections.
@@ -65,7 +65,7 @@ class StratifiedCase:
 
     @property
     def norm_m(self) -> float:
-        """Error normalisation c_ref t (m): the path length scale of physics.md's relative error."""
+        """Error normalisation c_ref t (m): the path length scale of the relative error, docs/physics.md §1."""
         return self.c_ref * self.t_end
 
     def profile(self) -> Profile:
@@ -75,7 +75,7 @@ class StratifiedCase:
         return fan(self.source, np.linspace(*self.elevation_range_deg, count))
 
     def n_and_dndz(self) -> Callable[[float], tuple[float, float]]:
-        """n(z) and dn/dz, written out from physics.md section 7 (independent of engine/profiles.py)."""
+        """n(z) and dn/dz, written out from docs/physics.md §7 (independent of engine/profiles.py)."""
         cr = self.c_ref
         p = self.params
         if self.kind == "log":

@@ -1,6 +1,6 @@
 """Fig. 3: convergence of the parabolic, circular and n-linear curves to the closed forms as epsilon falls.
 
-Profiles (physics.md section 7): c-linear (c = 340 + 0.1 z), n-linear (n = 1 + 0.02 z) and n^2-linear
+Profiles (docs/physics.md §7): c-linear (c = 340 + 0.1 z), n-linear (n = 1 + 0.02 z) and n^2-linear
 (n^2 = 1 + 0.01 z). Each is linear in the quantity of exactly one curve kind, so that curve traced through
 one slab *is* the closed-form ray (circle, catenary, parabola; checked against DOP853 to 1e-9 of the path
 in tests/engine/test_traversal_exact.py). That one-slab trace is the reference; every curve kind is then

@@ -6,7 +6,7 @@ bench section traces every case with the analytic tracer and with dopri5 and rk4
 and on the case's own mesh media for the tet cases), and records error, time and rays by status.
 tests/engine/test_extreme_cases.py runs the same cases against its own independent references.
 
-Cases (physics.md section 5 and 7):
+Cases (docs/physics.md §5 and §7):
 - ``grazing_alu``, ``grazing_ald``: sources *on* the ground (z = 0), elevations 0 and 1e-3 degrees, log
   profile b = -1 (lifted off) and b = +1 (pressed onto the ground: in the limit the ray creeps along it at
   c(0), x = c0 t; the tracer makes ever smaller bounces until its reflection limit);
@@ -151,7 +151,7 @@ def vertical_reference(profile: Profile, z0: float, up: bool, t_end: float) -> f
 def parabola_reference(
     origins: np.ndarray, directions: np.ndarray, alpha: float, t_end: float, c_ref: float = C_REF
 ) -> np.ndarray:
-    """End points (n, 3) m of rays in n^2 = 1 + alpha z over a reflecting ground z = 0 (physics.md section 2):
+    """End points (n, 3) m of rays in n^2 = 1 + alpha z over a reflecting ground z = 0 (docs/physics.md §2):
     x(sigma) = x0 + p0 sigma + g sigma^2 / 4, g = (0, 0, alpha), t(sigma) the exact cubic; ground hits from the
     quadratic z(sigma) = 0, reflected p_z -> -p_z; the time cubic inverted by brentq."""
     out = np.empty((len(origins), 3))

@@ -6,7 +6,7 @@ run), each configuration's mesh is refined step by step (coarse to fine) until t
 - parabolic + adaptive mesh: slabs by the curvature rule, delta 1e-4, 3e-5, 1e-5, ... (the default rule);
 - parabolic + adaptive mesh, paper's rule: slabs by the gradient rule, epsilon 1e-3, 3e-4, ... (full run);
 - circular + adaptive mesh (curvature rule on c; full run);
-- n-linear + adaptive mesh: the curvature rule on n; plane exits by bisection (physics.md section 4);
+- n-linear + adaptive mesh: the curvature rule on n; plane exits by bisection (docs/physics.md §4);
 - n-linear + bisection, uniform layers: Cao et al.'s setting (equal layers, catenary, bisection);
 - parabolic + uniform layers: the parabolic curve without the adaptive mesh.
 Uniform layer counts double from 1,024. The row reported per target is the first (coarsest) mesh that

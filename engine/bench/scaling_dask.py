@@ -31,8 +31,11 @@ from typing import Any
 import numba
 import numpy as np
 
+from bentray.engine.batches import BatchResult, combine_batches
 from bentray.engine.bench.common import Section, Table
-from bentray.engine.run import BatchResult, LocalExecutor, TracePlan, combine_batches, run_job
+from bentray.engine.executors import LocalExecutor
+from bentray.engine.run import run_job
+from bentray.engine.trace_plan import TracePlan
 from bentray.scenes.schema import Job
 
 __all__ = ["run", "main"]

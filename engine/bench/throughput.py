@@ -94,7 +94,8 @@ def run(quick: bool, scene_cache: dict[str, Any] | None = None) -> Section:
     sec.text.append(
         f"{count} rays over the sphere, 10 s, at most 3 reflections, parabolic curve; best of {repeats} warm run(s). "
         "Paper reference (one 3.2 GHz core, 2016): Desert(m) 10K rays, 179 cells per ray, 219 ms, ~8M crossings "
-        "per second. physics.md records 7M/s per core for a naive Numba traversal on random-point Delaunay tets."
+        "per second. docs/physics.md §9 records 7M/s per core for a naive Numba traversal on random-point "
+        "Delaunay tets."
     )
     desert = [r for r in table.rows if r["scene"] == "desert" and r["threads"] != ""]
     if desert:

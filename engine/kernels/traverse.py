@@ -46,7 +46,7 @@ from bentray.engine.constants import (
     STATUS_STEP_LIMIT,
     STATUS_TIME_LIMIT,
 )
-from bentray.engine.kernels import curves, field
+from bentray.engine.kernels import beams, curves, field, paraxial
 from bentray.engine.wind import WIND_NONE, effective_quantity
 
 # Zero-length steps in a row (edge/vertex walks) before the ray is nudged: a walk around one edge
@@ -346,6 +346,34 @@ def _flush(fld, x, d, t, s, slowness, f_weights, refl_cos, refl_mat, n_refl, gq,
     )
 
 
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _p_at(cs, sigma, p_out):
+    """Slowness vector p(sigma) = p0 + g sigma / 2 of the parabolic segment into p_out; returns |p| = n."""
+    nn = 0.0
+    for i in range(3):
+        p_out[i] = cs[i] + 0.5 * cs[3 + i] * sigma
+        nn += p_out[i] * p_out[i]
+    return math.sqrt(nn)
+
+
+@nb.njit(**NJIT_FLAGS)
+def _beam_segment(bgrid, bacc, slot, btabs, bray, curve, cs, x, d, param, t, s, ds, c_ref, par, par_tmp, p_tmp,
+                  n_refl, refl_cos, refl_mat, launch_cos, xs, ts):
+    """Beam samples inside a segment longer than the chord length (evaluated on the curve, uniform in sigma)."""
+    chord = btabs.chord_m
+    if ds <= chord:
+        return
+    n_int = int(ds / chord)
+    for j in range(1, n_int + 1):
+        prm = param * j / (n_int + 1)
+        dsj = curves.evaluate(curve, cs, x, d, prm, xs, ts)
+        tj = t + curves.time_at(curve, cs, prm, c_ref)
+        paraxial.advanced_copy(par, prm, par_tmp)
+        nj = _p_at(cs, prm, p_tmp)
+        beams.ray_sample(bgrid, bacc, slot, btabs, bray, xs, ts, tj, s + dsj, nj / c_ref, par_tmp, n_refl, refl_cos,
+                         refl_mat, launch_cos, False)
+
+
 @nb.njit(**NJIT_FLAGS)
 def trace_one(
     planes,
@@ -379,6 +407,9 @@ def trace_one(
     ray_id,
     refl_cos,
     refl_mat,
+    beam,
+    want_par,
+    out_par,
     out_state,
     out_counts,
 ):
@@ -426,6 +457,28 @@ def trace_one(
     t = 0.0
     s = 0.0
     cell = cell_start
+    bgrid, bacc, btabs = beam
+    deposit_on = bgrid.mode != beams.BEAM_OFF
+    beam_on = (deposit_on or want_par) and cell_start >= 0
+    par = np.zeros(paraxial.PAR_SIZE)
+    par_tmp = np.zeros(paraxial.PAR_SIZE)
+    p_end = np.zeros(3)
+    bray = beams.new_ray(bgrid.omega.shape[0])
+    launch_cos = math.sqrt(d[0] * d[0] + d[1] * d[1])
+    p_norm = 1.0
+    if beam_on:
+        m_start = _media_at(media_ref, ref_point, gradient, cell, x)
+        if wind_on:
+            m_start = effective_quantity(curve, c_ref, m_start, gradient[cell], ray_wind, wind_params, x, e_wind,
+                                         w_grad, g_eff)
+        if m_start > 0.0:
+            p_norm = math.sqrt(m_start)
+            paraxial.launch(par, d, p_norm)
+            if deposit_on:
+                beams.ray_sample(bgrid, bacc, acc, btabs, bray, x, d, 0.0, 0.0, p_norm / c_ref, par, 0, refl_cos,
+                                 refl_mat, launch_cos, True)
+        else:
+            beam_on = False
     entry = -1
     reflections = 0
     crossings = 0
@@ -496,6 +549,10 @@ def trace_one(
         if not curves.setup(curve, m0, g, d, cs):
             status = STATUS_LOST
             break
+        if beam_on:
+            n_new = math.sqrt(m0)
+            paraxial.restart(par, d, p_norm, n_new, g)
+            p_norm = n_new
         cell_size = size[cell]
         face, param = curves.find_exit(
             curve, cs, x, d, planes[cell], neighbours[cell], exclude, ON_FACE_REL * cell_size, cell_size
@@ -530,6 +587,15 @@ def trace_one(
         if t + dt >= max_time:
             param_end = curves.param_at_time(curve, cs, max_time - t, param, c_ref)
             ds = curves.evaluate(curve, cs, x, d, param_end, xn, dn)
+            if beam_on:
+                if deposit_on:
+                    _beam_segment(bgrid, bacc, acc, btabs, bray, curve, cs, x, d, param_end, t, s, ds, c_ref, par,
+                              par_tmp, p_end, reflections, refl_cos, refl_mat, launch_cos, xs, ts)
+                paraxial.advance(par, param_end)
+                p_norm = _p_at(cs, param_end, p_end)
+                if deposit_on:
+                    beams.ray_sample(bgrid, bacc, acc, btabs, bray, xn, dn, max_time, s + ds, p_norm / c_ref, par,
+                                     reflections, refl_cos, refl_mat, launch_cos, False)
             if f_on:
                 _deposit(
                     fld,
@@ -592,6 +658,17 @@ def trace_one(
             zero_run = 0
         elif param != 0.0:
             zero_run += 1
+        if beam_on:
+            if deposit_on:
+                _beam_segment(bgrid, bacc, acc, btabs, bray, curve, cs, x, d, param, t, s, ds, c_ref, par, par_tmp,
+                              p_end, reflections, refl_cos, refl_mat, launch_cos, xs, ts)
+            paraxial.advance(par, param)
+            p_norm = _p_at(cs, param, p_end)
+            if face >= 0:
+                paraxial.onto_face(par, planes[cell, face], p_end, g)
+                if deposit_on and (neighbours[cell, face] < 0 or s + ds - bray.last[beams.S_ARC] >= btabs.chord_m):
+                    beams.ray_sample(bgrid, bacc, acc, btabs, bray, xn, dn, t + dt, s + ds, p_norm / c_ref, par,
+                                     reflections, refl_cos, refl_mat, launch_cos, False)
         if f_on:
             _deposit(
                 fld,
@@ -731,6 +808,11 @@ def trace_one(
                 d[i] /= norm
             reflections += 1
             entry = face
+            if beam_on:
+                paraxial.reflect(par, planes[cell, face])
+                if deposit_on:
+                    beams.ray_sample(bgrid, bacc, acc, btabs, bray, x, d, t, s, p_norm / c_ref, par, reflections,
+                                 refl_cos, refl_mat, launch_cos, True)
             if record and t > t_last:
                 count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
                 t_last = t
@@ -759,6 +841,13 @@ def trace_one(
         )
     if record and (count == 0 or t > t_last):
         count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
+    if beam_on and deposit_on and s > bray.last[beams.S_ARC]:
+        beams.ray_sample(bgrid, bacc, acc, btabs, bray, x, d, t, s, p_norm / c_ref, par, reflections, refl_cos,
+                         refl_mat, launch_cos, False)
+    if want_par:
+        for i in range(paraxial.PAR_SIZE):
+            out_par[i] = par[i]
+        out_par[paraxial.PAR_SIZE] = p_norm if beam_on else math.nan
     for i in range(3):
         out_state[i] = x[i]
         out_state[3 + i] = d[i]
@@ -803,6 +892,10 @@ def trace_rays(
     n_slots,
     refl_cos,
     refl_mat,
+    bgrid,
+    bacc,
+    btabs,
+    out_par,
     out_state,
     out_counts,
 ):
@@ -815,7 +908,9 @@ def trace_rays(
     wind_code, wind_params : analytic wind for every ray (engine/wind.py; WIND_NONE: none).
     """
     n = origins.shape[0]
+    want_par = out_par.shape[0] == n
     for slot in nb.prange(n_slots):
+        spare = np.empty(paraxial.PAR_SIZE + 1)
         for i in range(slot, n, n_slots):
             trace_one(
                 planes,
@@ -849,6 +944,9 @@ def trace_rays(
                 i,
                 refl_cos[i],
                 refl_mat[i],
+                (bgrid, bacc, btabs),
+                want_par,
+                out_par[i] if want_par else spare,
                 out_state[i],
                 out_counts[i],
             )

@@ -2,7 +2,7 @@
 
 A lattice is grown breadth-first from the domain centre. A popped site is kept when it lies in the box
 and no kept sample is too close; every kept site pushes its 12 FCC neighbours at its spacing d(x)
-(physics.md section 6; here the mean of the two end spacings, see ``_children``).
+(docs/physics.md §6; here the mean of the two end spacings, see ``_children``).
 The FIFO queue is processed one BFS level at a time, fully vectorised:
 
 1. the level's candidates (children of the previous level, in parent-then-direction order) are

@@ -14,7 +14,7 @@ faces. Here the media mesh ignores the surfaces (the paper's Sec. 5.2 second opt
    walls), so a ray reaches a surface where the plane's signed distance crosses zero upward, exactly as it
    leaves a cell through a face (kernels/roots.py).
 3. Link table (``link_cells``): candidate (cell, triangle) pairs from padded bounding boxes
-   (scenes.geometry.box_pairs), then an exact separating-axis test in Numba (23 axes: the triangle normal,
+   (engine.mesh.boxes.box_pairs), then an exact separating-axis test in Numba (23 axes: the triangle normal,
    4 tet face normals, 18 edge-edge cross products) padded by LINK_TOL_REL x cell size, so touching pairs
    are linked (conservative). CSR: ``link_offsets`` (n_cells + 1), ``link_tris``.
 4. Solid cells: a cell with no links lies entirely on one side of every surface; it is solid when its
@@ -35,6 +35,7 @@ import numba as nb
 import numpy as np
 
 from bentray.engine.constants import BOUNDARY_REFLECT, NJIT_FLAGS, PARALLEL_FLAGS
+from bentray.engine.mesh.boxes import box_pairs
 from bentray.engine.mesh.cells import CellMesh
 from bentray.engine.mesh.terrain import (
     _check_footprints,
@@ -46,7 +47,6 @@ from bentray.engine.mesh.terrain import (
 from bentray.engine.mesh.tets import TetMesh
 from bentray.engine.mesh.triangulate2d import TriangleLocator, checked_spacing_2d, points_in_polygon
 from bentray.engine.surfaces import HeightGrid, SceneSurfaces, TriangleSurface
-from bentray.scenes.geometry import box_pairs
 
 __all__ = [
     "BOUNDARY_SOLID",
@@ -76,7 +76,7 @@ PARALLEL_AXIS_REL = 1e-12
 # Flat bottom of the media mesh sits this fraction of the domain height below the lowest surface point, so
 # no surface vertex lies on a mesh face (the media below the domain bottom is clamped to its value there).
 BOTTOM_MARGIN_REL = 1e-3
-# Cells per bounding-box candidate search (scenes.geometry.box_pairs caps candidates at 20M per call).
+# Cells per bounding-box candidate search (engine.mesh.boxes.box_pairs caps candidates at 20M per call).
 LINK_CHUNK = 250_000
 
 

@@ -1,4 +1,4 @@
-"""Cell-size rules for the media mesh (physics.md section 6).
+"""Cell-size rules for the media mesh (docs/physics.md §6).
 
 Two rules, both offered, the default chosen by measurement (README, benchmark):
 

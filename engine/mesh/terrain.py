@@ -235,7 +235,7 @@ def build_terrain_mesh(
     domain_min, domain_max : (3,) metres, world frame, z up. The top of the mesh is z = domain_max z.
     quantity_at : callable, xyz (N, 3) float64 metres -> traced quantity m (N,) (n^2, c or n).
     horizontal_spacing : target triangle edge length d (metres): a constant or a callable xy (N, 2) -> (N,),
-        evaluated at ground level (the sizing field of physics.md section 6).
+        evaluated at ground level (the sizing field of docs/physics.md §6).
     layer_levels : sigma levels (L + 1,), 0 = s_0 < ... < s_L = 1: z_k = g + s_k (H - g) (prisms.py).
     vertical_spacing : alternatively the layer thickness dz (metres), a constant or a callable of the
         height above ground zeta (M,) -> (M,) on the tallest column (lowest ground); levels follow it.

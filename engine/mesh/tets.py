@@ -1,4 +1,4 @@
-"""Delaunay tetrahedralisation of a box domain into a CellMesh (paper Sec. 5.1-5.3, physics.md section 6).
+"""Delaunay tetrahedralisation of a box domain into a CellMesh (paper Sec. 5.1-5.3, docs/physics.md §6).
 
 ``build_tet_mesh`` takes interior samples (e.g. from ``fcc.fcc_resample``), adds boundary samples on the
 12 box edges (1D graded) and the 6 faces (hexagonal lattice grown on the face, Algorithm 2 in 2D), runs

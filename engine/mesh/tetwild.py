@@ -48,6 +48,7 @@ from bentray.engine.errors import MeshBuildError
 from bentray.engine.mesh.cells import locate_points
 from bentray.engine.mesh.gradients import tet_cell_mesh
 from bentray.engine.mesh.prisms import face_planes, face_vertices, match_faces
+from bentray.engine.mesh.surface_checks import basic_mesh_problem, closed_mesh_problem
 from bentray.engine.mesh.tets import (
     DEGENERATE_VOL_REL,
     GRADIENT_METHODS,
@@ -55,7 +56,6 @@ from bentray.engine.mesh.tets import (
     _morton_order,
     locate_tets,
 )
-from bentray.scenes.mesh_checks import basic_mesh_problem, closed_mesh_problem
 
 # fTetWild's envelope: its output boundary lies within epsilon * (input bounding-box diagonal) of the
 # input surface. Measured on a 60 x 40 x 30 m box with an 8 m sphere (edge 4 m, 1 thread): epsilon 1e-3
@@ -174,7 +174,7 @@ def build_obstacle_tet_mesh(
         z from ground_z to domain_max z.
     ground_z : flat ground height, metres, domain_min z <= ground_z < domain_max z.
     obstacles : list of (vertices (V, 3) float64 metres, faces (F, 3) int64): closed, outward oriented,
-        not self-intersecting (checked as scenes.mesh_checks), strictly inside the box's xy extent and
+        not self-intersecting (checked as engine.mesh.surface_checks), strictly inside the box's xy extent and
         below its top by more than snap_tol; they may reach below the ground.
     quantity_at : callable, xyz (N, 3) float64 metres -> traced quantity m (N,) (n^2, c or n).
     edge_length : fTetWild's ideal edge length, metres.

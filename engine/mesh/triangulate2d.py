@@ -1,6 +1,6 @@
 """2D point set and conforming Delaunay triangulation for the terrain-following mesh (terrain.py).
 
-The horizontal plane of the domain box is sampled with graded spacing d(x, y) (physics.md section 6):
+The horizontal plane of the domain box is sampled with graded spacing d(x, y) (docs/physics.md §6):
 
 * *constraint points*, never moved or dropped: the 4 box corners, graded samples along the 4 box sides,
   every footprint vertex and graded samples along every footprint edge;

@@ -1,7 +1,7 @@
-"""``ridge``: the A-UW / A-DW hill of physics.md section 7, a 2D ridge h(x) = H L^2 / (x^2 + L^2) running
+"""``ridge``: the A-UW / A-DW hill of docs/physics.md §7, a 2D ridge h(x) = H L^2 / (x^2 + L^2) running
 along y, with the log-law wind plus the potential-flow speed-up over it.
 
-physics.md gives the shape but no numbers; we use H = 40 m and L = 200 m (H / L = 0.2: small enough for
+docs/physics.md §7 gives the shape but no numbers; we use H = 40 m and L = 200 m (H / L = 0.2: small enough for
 the linear speed-up theory, du = u_ref H / L = 0.2 u_ref at the crest, and steep enough to matter).
 Two sources 2 m above the ground, 800 m either side of the crest: with the wind along +x the left one
 sends its rays downwind over the ridge (A-DW), the right one upwind (A-UW).

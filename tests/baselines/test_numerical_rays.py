@@ -190,7 +190,7 @@ def test_mesh_media_walk_to_the_cell_and_evaluate_its_linear_model(quantity):
 @pytest.mark.parametrize("method", [METHOD_RK4, METHOD_DOPRI5], ids=["rk4", "dopri5"])
 def test_one_step_is_exact_for_constant_grad_n2(method):
     """n^2 = n0^2 + a z: x(sigma) = x0 + p0 sigma + g sigma^2/4, t = (n0^2 s + g.p0 s^2/2 + |g|^2 s^3/12)/c_ref
-    (physics.md section 2) is polynomial, so RK4 and DOPRI5 reproduce it to rounding in one long step."""
+    (docs/physics.md §2) is polynomial, so RK4 and DOPRI5 reproduce it to rounding in one long step."""
     profile = LinearN2(n0=1.0, alpha=0.01)
     med = make_media("exact", exact_spec=exact_media_spec(profile), c_ref=C_REF)
     x0 = np.array([1.0, 2.0, 30.0])

@@ -1,4 +1,4 @@
-"""Fields against the image-source solution (physics.md section 8).
+"""Fields against the image-source solution (docs/physics.md §8).
 
 Homogeneous air (c = 340 m/s), flat ground, source at 2 m, receiver lines at 1.5 m. The references
 are independent closed forms: 1/R1^2 + |Q|^2/R2^2 (incoherent) and |exp(ikR1)/R1 + Q exp(ikR2)/R2|

@@ -1,7 +1,7 @@
 """Media profiles (engine/profiles.py) and their job-file models (scenes/profile_models.py).
 
 References are independent of the code under test: central finite differences computed here, closed
-forms evaluated by hand, and the paper's parameter values from physics.md section 7.
+forms evaluated by hand, and the paper's parameter values from docs/physics.md §7.
 """
 
 from __future__ import annotations
@@ -169,7 +169,7 @@ def test_hot_spot_temperature() -> None:
 # Table
 # ---------------------------------------------------------------------------------------------
 def test_table_temperature_conversion() -> None:
-    expected = math.sqrt(1.4 * 287.05 * 288.15)  # 340.2923 m/s with physics.md's R = 287.05
+    expected = math.sqrt(1.4 * 287.05 * 288.15)  # 340.2923 m/s with docs/physics.md §7's R = 287.05
     tk = P.Table(z=[0.0, 100.0], temperature_k=[288.15, 288.15])
     tc = P.Table(z=[0.0, 100.0], temperature_c=[15.0, 15.0])
     for prof in (tk, tc):

@@ -1,4 +1,4 @@
-"""Every boundary case of physics.md section 5, each against a closed form or an exact invariant.
+"""Every boundary case of docs/physics.md §5, each against a closed form or an exact invariant.
 
 Ray end states: time_limit (exactly at max_time, solved inside the last segment), reflection_limit,
 exited (open face), step_limit, lost (never silent: counted, nudges recorded).

@@ -1,5 +1,5 @@
 """Traversal through Delaunay tetrahedra: exactness where the mesh is exact, and robustness at
-vertices, edges and faces (the rounding cases of physics.md section 5).
+vertices, edges and faces (the rounding cases of docs/physics.md §5).
 
 References: straight lines and the mirror-image source (homogeneous medium, flat ground), and the
 single-slab trace of an exactly linear medium (itself checked against DOP853 to 1e-9 elsewhere).

@@ -155,7 +155,7 @@ def test_schema_models_match_builders():
 
 def test_crest_speed_up_and_log_law_values():
     code, p = wind_spec("ridge", RIDGE)
-    # crest, just above the surface: du -> u_ref H / L (physics.md section 7), plus the log term
+    # crest, just above the surface: du -> u_ref H / L (docs/physics.md §7), plus the log term
     dz = 1e-6 + Z_G
     u = wind_speed_at(code, p, 0.0, H + dz)
     assert u == pytest.approx(A * math.log(dz / Z_G) + U_REF * H * L / (dz + L) ** 2, rel=1e-13)

@@ -158,6 +158,9 @@ def test_checkerboard_grid_is_refused_and_smooth_grid_passes(job):
     assert lines and lines[0].startswith("profile.c: 62 of 125 grid nodes have a sound speed outside")
     job["profile"]["c"] = (340.0 + 0.1 * kk).tolist()
     assert media_problems(parse_job_text(json.dumps(job))) == []
+    job["profile"]["c"] = np.where((ii + jj + kk) % 2 == 0, 100.0, 1000.0).tolist()  # each node in range
+    lines = media_problems(parse_job_text(json.dumps(job)))
+    assert lines and lines[0].startswith("profile.c: the grid's sound speed ranges from 100 to 1000 m/s")
 
 
 def test_grid_file_with_nan_or_negative_speed_is_a_scene_problem(tmp_path, job):

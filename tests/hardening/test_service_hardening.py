@@ -58,6 +58,7 @@ def test_deep_geojson_upload_answers_422(server):
     with server.client() as http:
         r = http.post("/v1/assets", files={"file": ("deep.geojson", deep)})
     assert r.status_code == 422 and set(r.json()) >= ERROR_KEYS, r.text
+    assert r.json()["errors"][0]["field"] == "file"
 
 
 def test_wrapping_field_shape_answers_422(server):

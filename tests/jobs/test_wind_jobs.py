@@ -1,6 +1,6 @@
 """Wind in jobs: the ``wind`` key reaches the mesh choice, the sizing and the kernel.
 
-Reference: the A-UW / A-DW ridge (physics.md section 7). Over the symmetric ridge in still air the
+Reference: the A-UW / A-DW ridge (docs/physics.md §7). Over the symmetric ridge in still air the
 rays of a source at x = -800 m shooting along +x and its mirror image at x = +800 m shooting along -x are
 mirror images (to rounding); with the wind blowing toward +x the downwind fan bends toward the ground
 (more ground reflections, lower rays) and the upwind fan bends away (fewer, higher).

@@ -23,8 +23,9 @@ import pytest
 
 distributed = pytest.importorskip("distributed")
 
-from bentray.clients.cli import main  # noqa: E402
+from bentray.clients.cli import dask_address, main  # noqa: E402
 from bentray.clients.sweep_cli import SweepError, parse_values, set_dotted  # noqa: E402
+from bentray.engine.batches import BatchResult  # noqa: E402
 from bentray.engine.dask_executor import (  # noqa: E402
     DaskExecutor,
     InOrderSum,
@@ -32,9 +33,12 @@ from bentray.engine.dask_executor import (  # noqa: E402
     disconnect,
     task_numba_threads,
 )
+from bentray.engine.executors import LocalExecutor, make_executor  # noqa: E402
 from bentray.engine.field_buffers import FieldBuffers, FieldGrid  # noqa: E402
-from bentray.engine.run import BatchResult, LocalExecutor, TracePlan, run_job  # noqa: E402
+from bentray.engine.run import run_job  # noqa: E402
+from bentray.engine.trace_plan import BaselineSpec, TracePlan  # noqa: E402
 from bentray.scenes.schema import Job  # noqa: E402
+from bentray.service.settings import Settings  # noqa: E402
 
 FIELD_RTOL = 1e-12  # different numba thread counts reorder the per-batch slot sums (engine/dask_executor.py)
 RAY_FIELDS = ("position", "direction", "time_s", "length_m", "reflections", "status", "crossings")
@@ -191,11 +195,18 @@ def test_unaligned_arrays_are_realigned():
         max_reflections=1,
         max_steps=1,
         path_samples=0,
-        baseline={"x": raw},
+        baseline=BaselineSpec("rk4", "mesh", "n2", (0, raw), 1.0, 1e-8, raw[:3], np.ones(3), 0.0, "open"),
         field=grid,
     )
     out = aligned_arrays(plan)
-    arrays = [out.mesh[0], out.wind[1], out.origins, out.baseline["x"], out.field.origin]
+    arrays = [
+        out.mesh[0],
+        out.wind[1],
+        out.origins,
+        out.baseline.exact_spec[1],
+        out.baseline.domain_min,
+        out.field.origin,
+    ]
     assert all(a.flags.aligned for a in arrays)
     for a in arrays:
         np.testing.assert_array_equal(a.reshape(-1), raw[: a.size])
@@ -286,11 +297,24 @@ def test_worker_killed_mid_job_is_rescheduled(client, local_runs):
     )
 
 
-def test_scheduler_from_the_environment(client, local_runs, monkeypatch):
+def test_scheduler_from_the_environment(client, local_runs, monkeypatch, tmp_path):
+    # the engine reads no configuration: the CLI (and the service settings) turn the variable into an executor
     monkeypatch.setenv("BENTRAY_DASK_SCHEDULER", client.scheduler.address)
-    outcome = run_job(_job("incoherent", batch_rays=100))  # no executor: configuration picks Dask
+    assert dask_address(None) == client.scheduler.address
+    assert dask_address(" tcp://elsewhere:1 ") == "tcp://elsewhere:1"  # the flag wins
+    assert Settings.from_env().dask_scheduler == client.scheduler.address
+    assert run_job(_job("incoherent", batch_rays=100)).report["batches"]["executor"] == "local"
+    outcome = run_job(_job("incoherent", batch_rays=100), executor=make_executor(dask_address(None)))
     assert outcome.report["batches"]["executor"] == "dask"
     _assert_same(local_runs["incoherent"], outcome, rtol=FIELD_RTOL)
+    job_path = tmp_path / "job.json"
+    job_path.write_text(json.dumps(_spec(el=11, az=5)), encoding="utf-8")
+    assert main(["run", str(job_path), "--out", str(tmp_path / "run")]) == 0  # no --dask: the variable
+    report = json.loads((tmp_path / "run" / "report.json").read_text(encoding="utf-8"))
+    assert report["batches"]["executor"] == "dask"
+    monkeypatch.delenv("BENTRAY_DASK_SCHEDULER")
+    assert dask_address(None) is None
+    assert Settings.from_env().dask_scheduler is None
 
 
 def test_run_and_sweep_commands_on_the_cluster(client, tmp_path, capsys):

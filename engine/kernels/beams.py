@@ -1,0 +1,456 @@
+"""Beam fields: geometric (hat) beams around paraxial rays, summed onto field points (docs/physics.md §11).
+
+Every ray carries, besides its position ``x``, unit tangent ``T``, travel time ``t`` and arc length
+``s``, the paraxial derivatives of its state with respect to its two launch angles ``gamma = (el, az)``:
+``X_k = dx/dgamma_k`` and ``P_k = dp/dgamma_k`` (``p = n T``, ``n = c_ref / c``; engine/kernels/paraxial.py).
+The traversal cuts each ray into straight *chords* between samples ``a`` and ``b`` (a few metres apart,
+and at every reflection and at the end) and calls :func:`deposit_chord` for each.
+
+For a field point ``r`` the chord owns ``r`` when ``(r - x_a).T_a >= 0 > (r - x_b).T_b``: consecutive
+chords share their end planes, so along one ray every point has at most one foot. At the foot
+(``u = d_a / (d_a - d_b)``, all sample quantities interpolated linearly in u) the transverse offset
+``q = r - x_f`` is expressed in launch angles by solving ``X_perp dgamma = q_perp`` (2x2, in the
+orthonormal transverse basis built from X_1 and X_2); the hat weight is
+``w = (1 - |dgamma_1| / Dgamma_1)(1 - |dgamma_2| / Dgamma_2)`` (zero outside one launch step), so the
+four rays around a point's launch angles share it with weights summing to one. The ray's intensity
+there follows from its own tube: ``I / I_1m = cos(el_0) / J`` with ``J = |X_1,perp x X_2,perp|``
+(``I_1m`` the free-field intensity at 1 m), and its travel time to ``r`` from the eikonal to second
+order: ``tau = t_f + (q.T) / c_f + q_perp.(P_1 dgamma_1 + P_2 dgamma_2) / (2 c_ref)`` (the wavefront
+curvature ``P X^-1`` without forming it).
+
+Near a caustic ``J -> 0``: each transverse width ``|X_k,perp| Dgamma_k`` is floored at ``w_min`` (the
+amplitude then stays finite and the beam keeps a width). Arrivals are kept apart in groups (reflection
+count, caustic count): per group the accumulator holds ``sum w A exp(i w tau)`` (or ``sum w I``) and
+``sum w``; the finaliser divides by ``max(sum w, W_FLOOR)``, which removes the partition-of-unity
+deficit where a group's neighbouring rays have already reflected (near the ground at grazing angles),
+and fades the field to zero within one beam width of a fan edge or a geometric shadow boundary.
+
+Accumulators are per thread slot (``slot``): no shared writes; the wrapper sums the slots in order.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numba as nb
+import numpy as np
+
+from bentray.engine.acoustics.ground import q_lookup
+from bentray.engine.constants import NJIT_FLAGS
+
+# Sample record layout (float64): position, unit tangent, time, arc, X1, X2, P1, P2, slowness 1/c,
+# sign of det[X1, X2, T] at the sample (caustic detection), group index of the chord that ends here.
+S_X = 0
+S_T = 3
+S_TIME = 6
+S_ARC = 7
+S_X1 = 8
+S_X2 = 11
+S_P1 = 14
+S_P2 = 17
+S_SLOW = 20
+S_JSIGN = 21
+SAMPLE_SIZE = 22
+
+BEAM_OFF = 0
+BEAM_COHERENT = 1
+BEAM_INCOHERENT = 2
+BEAM_SEMICOHERENT = 3
+BEAM_MODES = {"coherent": BEAM_COHERENT, "incoherent": BEAM_INCOHERENT, "semicoherent": BEAM_SEMICOHERENT}
+
+# Caustic-count classes kept apart (0, 1, >= 2 caustics): two branches of one reflection count that meet
+# at a point are separated by a fold, so they differ in their caustic count.
+N_KMAH = 3
+# Divide each group's sum by max(sum of hat weights, W_FLOOR): a point with at least half of a full
+# partition of unity is normalised; below that the field fades linearly (fan edges, shadow boundaries).
+W_FLOOR = 0.5
+# The caustic floor of a beam's width is at most this fraction of the width of an unfocused tube at the
+# same arc length (arc * Dgamma): it acts where a tube has collapsed, not near the source.
+FLOOR_ARC_REL = 0.25
+
+
+class BeamGrid(NamedTuple):
+    """Field points and the beam constants of a job (read only in kernels).
+
+    origin, spacing : (3,) float64, metres, world frame; point (i, j, k) is at
+        ``origin + (i, j, k) * spacing + (0, 0, z_offset[i, j])``.
+    shape : (3,) int64; z_offset : (nx, ny) float64 m (zeros; terrain height for maps above the ground).
+    omega : (n_f,) angular frequencies, rad/s; c_ref : m/s (n = c_ref / c).
+    dgamma : (2,) launch steps (elevation, azimuth) in rad; w_min : smallest beam half-width, m.
+    n_refl : number of reflection-count groups (the last one holds all higher counts).
+    mode : BEAM_COHERENT | BEAM_INCOHERENT | BEAM_SEMICOHERENT.
+    """
+
+    origin: np.ndarray
+    spacing: np.ndarray
+    shape: np.ndarray
+    z_offset: np.ndarray
+    omega: np.ndarray
+    c_ref: float
+    dgamma: np.ndarray
+    w_min: float
+    n_refl: int
+    mode: int
+
+
+class BeamAcc(NamedTuple):
+    """Per-slot accumulators; V = number of field points, G = n_refl * N_KMAH groups, F bands.
+
+    s_re, s_im : (slots, G, F, V) sum of w A exp(i omega tau) (size 0 in incoherent mode).
+    energy : (slots, G, F, V) sum of w I / I_1m (size 0 in coherent mode).
+    weight : (slots, G, V) sum of hat weights w.
+    hits : (slots, V) number of beam contributions (diagnostics: a point no beam reached has 0).
+    """
+
+    s_re: np.ndarray
+    s_im: np.ndarray
+    energy: np.ndarray
+    weight: np.ndarray
+    hits: np.ndarray
+
+
+def group_index(n_refl_groups: int, reflections: int, kmah: int) -> int:
+    """Plain-Python mirror of the kernels' group numbering (tests and the finaliser)."""
+    return min(reflections, n_refl_groups - 1) * N_KMAH + min(kmah, N_KMAH - 1)
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def chord_group(n_refl_groups, reflections, kmah):
+    return min(reflections, n_refl_groups - 1) * N_KMAH + min(kmah, N_KMAH - 1)
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _transverse_basis(x1, x2, t, dg1, dg2, w_min, arc, out):
+    """Orthonormal transverse basis e1, e2 and the triangular map of dgamma into it.
+
+    x1, x2 : X_1, X_2 (3,); t : unit tangent. Writes out[0:3] = e1, out[3:6] = e2 and returns
+    (a11, a12, a22, j_raw): ``X_perp dgamma = (a11 dg1 + a12 dg2) e1 + a22 dg2 e2`` with a11 and a22
+    floored so that a_kk * Dgamma_k >= min(w_min, FLOOR_ARC_REL * arc * Dgamma_k); j_raw = |X1p x X2p|.
+    """
+    a1 = x1[0] * t[0] + x1[1] * t[1] + x1[2] * t[2]
+    u0 = x1[0] - a1 * t[0]
+    u1 = x1[1] - a1 * t[1]
+    u2 = x1[2] - a1 * t[2]
+    a2 = x2[0] * t[0] + x2[1] * t[1] + x2[2] * t[2]
+    v0 = x2[0] - a2 * t[0]
+    v1 = x2[1] - a2 * t[1]
+    v2 = x2[2] - a2 * t[2]
+    nu = math.sqrt(u0 * u0 + u1 * u1 + u2 * u2)
+    if nu > 0.0:
+        e0, e1_, e2_ = u0 / nu, u1 / nu, u2 / nu
+    else:
+        # X1 has no transverse part (a point caustic of the elevation family): any direction normal to
+        # T and, if possible, to X2
+        nv = math.sqrt(v0 * v0 + v1 * v1 + v2 * v2)
+        if nv > 0.0:
+            # e1 = (X2p x T) / |X2p|
+            e0 = (v1 * t[2] - v2 * t[1]) / nv
+            e1_ = (v2 * t[0] - v0 * t[2]) / nv
+            e2_ = (v0 * t[1] - v1 * t[0]) / nv
+        else:
+            # any unit vector normal to T
+            if abs(t[2]) < 0.9:
+                e0, e1_, e2_ = -t[1], t[0], 0.0
+            else:
+                e0, e1_, e2_ = 0.0, -t[2], t[1]
+            ne = math.sqrt(e0 * e0 + e1_ * e1_ + e2_ * e2_)
+            e0, e1_, e2_ = e0 / ne, e1_ / ne, e2_ / ne
+    # e2 = T x e1 (right-handed transverse basis)
+    f0 = t[1] * e2_ - t[2] * e1_
+    f1 = t[2] * e0 - t[0] * e2_
+    f2 = t[0] * e1_ - t[1] * e0
+    a11 = nu
+    a12 = v0 * e0 + v1 * e1_ + v2 * e2_
+    a22 = v0 * f0 + v1 * f1 + v2 * f2
+    j_raw = abs(a11 * a22)
+    sgn = 1.0 if a22 >= 0.0 else -1.0
+    a22 = abs(a22)
+    # floors: w_min, but never more than FLOOR_ARC_REL of the width an unfocused tube would have at this
+    # arc length (about arc * dgamma): near the source the tube is legitimately thin, at a caustic it is not
+    floor1 = min(w_min, FLOOR_ARC_REL * arc * dg1)
+    floor2 = min(w_min, FLOOR_ARC_REL * arc * dg2)
+    if a11 * dg1 < floor1:
+        a11 = floor1 / dg1
+    if a22 * dg2 < floor2:
+        a22 = floor2 / dg2
+    if a11 <= 0.0:
+        a11 = 1e-300
+    if a22 <= 0.0:
+        a22 = 1e-300
+    out[0] = e0
+    out[1] = e1_
+    out[2] = e2_
+    out[3] = sgn * f0
+    out[4] = sgn * f1
+    out[5] = sgn * f2
+    return a11, a12, a22, j_raw
+
+
+@nb.njit(**NJIT_FLAGS)
+def signed_tube(sample):
+    """det[X1, X2, T] of a sample record: its sign flips where the ray passes a caustic."""
+    x1 = sample[S_X1 : S_X1 + 3]
+    x2 = sample[S_X2 : S_X2 + 3]
+    t = sample[S_T : S_T + 3]
+    return (
+        x1[0] * (x2[1] * t[2] - x2[2] * t[1])
+        - x1[1] * (x2[0] * t[2] - x2[2] * t[0])
+        + x1[2] * (x2[0] * t[1] - x2[1] * t[0])
+    )
+
+
+@nb.njit(**NJIT_FLAGS)
+def _half_width(sample, dg1, dg2, w_min):
+    """Upper bound of the beam's transverse reach around a sample (m)."""
+    n1 = 0.0
+    n2 = 0.0
+    for i in range(3):
+        n1 += sample[S_X1 + i] * sample[S_X1 + i]
+        n2 += sample[S_X2 + i] * sample[S_X2 + i]
+    return max(math.sqrt(n1) * dg1, w_min) + max(math.sqrt(n2) * dg2, w_min)
+
+
+@nb.njit(**NJIT_FLAGS)
+def _index_range(lo, hi, origin, spacing, n):
+    """Grid indices [i0, i1] whose coordinate lies in [lo, hi] (empty when i0 > i1)."""
+    i0 = int(math.ceil((lo - origin) / spacing))
+    i1 = int(math.floor((hi - origin) / spacing))
+    if i0 < 0:
+        i0 = 0
+    if i1 > n - 1:
+        i1 = n - 1
+    return i0, i1
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _turn(re, im, kmah):
+    """(re + i im) * (-i)^kmah: the phase lost at each caustic (exp(-i w t) convention)."""
+    k = kmah % 4
+    if k == 0:
+        return re, im
+    if k == 1:
+        return im, -re
+    if k == 2:
+        return -re, -im
+    return -im, re
+
+
+@nb.njit(**NJIT_FLAGS)
+def deposit_chord(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos):
+    """Add the beam of the chord from sample ``sa`` to sample ``sb`` to every field point it owns.
+
+    sa, sb : (SAMPLE_SIZE,) sample records; amp_a, amp_b : (2, F) complex amplitude factor per band
+    at the two samples (reflection coefficients, absorption, caustic phase; re in row 0, im in row 1);
+    group : arrival group of the chord; kmah : caustics passed (the amplitude turns by (-i)^kmah, time
+    factor exp(-i w t)); launch_cos : cos(launch elevation) (I / I_1m = launch_cos / J).
+    Returns the number of field points that received a contribution.
+    """
+    dg1 = grid.dgamma[0]
+    dg2 = grid.dgamma[1]
+    w_min = grid.w_min
+    reach = max(_half_width(sa, dg1, dg2, w_min), _half_width(sb, dg1, dg2, w_min))
+    nx = grid.shape[0]
+    ny = grid.shape[1]
+    nz = grid.shape[2]
+    i0, i1 = _index_range(
+        min(sa[S_X], sb[S_X]) - reach, max(sa[S_X], sb[S_X]) + reach, grid.origin[0], grid.spacing[0], nx
+    )
+    j0, j1 = _index_range(
+        min(sa[S_X + 1], sb[S_X + 1]) - reach,
+        max(sa[S_X + 1], sb[S_X + 1]) + reach,
+        grid.origin[1],
+        grid.spacing[1],
+        ny,
+    )
+    z_lo = min(sa[S_X + 2], sb[S_X + 2]) - reach
+    z_hi = max(sa[S_X + 2], sb[S_X + 2]) + reach
+    n_f = grid.omega.shape[0]
+    mode = grid.mode
+    coherent = mode != BEAM_INCOHERENT
+    incoherent = mode != BEAM_COHERENT
+    c_ref = grid.c_ref
+    basis = np.empty(6)
+    x1 = np.empty(3)
+    x2 = np.empty(3)
+    tf = np.empty(3)
+    count = 0
+    for i in range(i0, i1 + 1):
+        px = grid.origin[0] + i * grid.spacing[0]
+        for j in range(j0, j1 + 1):
+            py = grid.origin[1] + j * grid.spacing[1]
+            zo = grid.origin[2] + grid.z_offset[i, j]
+            k0, k1 = _index_range(z_lo, z_hi, zo, grid.spacing[2], nz)
+            for k in range(k0, k1 + 1):
+                pz = zo + k * grid.spacing[2]
+                da = (px - sa[S_X]) * sa[S_T] + (py - sa[S_X + 1]) * sa[S_T + 1] + (pz - sa[S_X + 2]) * sa[S_T + 2]
+                if da < 0.0:
+                    continue
+                db = (px - sb[S_X]) * sb[S_T] + (py - sb[S_X + 1]) * sb[S_T + 1] + (pz - sb[S_X + 2]) * sb[S_T + 2]
+                if db >= 0.0:
+                    continue
+                u = da / (da - db)
+                v_ = 1.0 - u
+                tn = 0.0
+                for a in range(3):
+                    tf[a] = v_ * sa[S_T + a] + u * sb[S_T + a]
+                    tn += tf[a] * tf[a]
+                tn = math.sqrt(tn)
+                q0 = px - (v_ * sa[S_X] + u * sb[S_X])
+                q1 = py - (v_ * sa[S_X + 1] + u * sb[S_X + 1])
+                q2 = pz - (v_ * sa[S_X + 2] + u * sb[S_X + 2])
+                for a in range(3):
+                    tf[a] /= tn
+                    x1[a] = v_ * sa[S_X1 + a] + u * sb[S_X1 + a]
+                    x2[a] = v_ * sa[S_X2 + a] + u * sb[S_X2 + a]
+                arc = v_ * sa[S_ARC] + u * sb[S_ARC]
+                a11, a12, a22, _ = _transverse_basis(x1, x2, tf, dg1, dg2, w_min, arc, basis)
+                qa = q0 * tf[0] + q1 * tf[1] + q2 * tf[2]
+                qp0 = q0 - qa * tf[0]
+                qp1 = q1 - qa * tf[1]
+                qp2 = q2 - qa * tf[2]
+                c1 = qp0 * basis[0] + qp1 * basis[1] + qp2 * basis[2]
+                c2 = qp0 * basis[3] + qp1 * basis[4] + qp2 * basis[5]
+                g2 = c2 / a22
+                g1 = (c1 - a12 * g2) / a11
+                h1 = 1.0 - abs(g1) / dg1
+                if h1 <= 0.0:
+                    continue
+                h2 = 1.0 - abs(g2) / dg2
+                if h2 <= 0.0:
+                    continue
+                w = h1 * h2
+                rel_i = launch_cos / (a11 * a22)
+                v = (i * ny + j) * nz + k
+                acc.weight[slot, group, v] += w
+                acc.hits[slot, v] += 1.0
+                count += 1
+                if incoherent:
+                    for f in range(n_f):
+                        re = v_ * amp_a[0, f] + u * amp_b[0, f]
+                        im = v_ * amp_a[1, f] + u * amp_b[1, f]
+                        acc.energy[slot, group, f, v] += w * rel_i * (re * re + im * im)
+                if coherent:
+                    # travel time to the point: foot time, along-tangent offset, wavefront curvature
+                    pd0 = 0.0
+                    for a in range(3):
+                        pd = (v_ * sa[S_P1 + a] + u * sb[S_P1 + a]) * g1 + (v_ * sa[S_P2 + a] + u * sb[S_P2 + a]) * g2
+                        if a == 0:
+                            pd0 += qp0 * pd
+                        elif a == 1:
+                            pd0 += qp1 * pd
+                        else:
+                            pd0 += qp2 * pd
+                    tau = (
+                        v_ * sa[S_TIME]
+                        + u * sb[S_TIME]
+                        + qa * (v_ * sa[S_SLOW] + u * sb[S_SLOW])
+                        + 0.5 * pd0 / c_ref
+                    )
+                    amp = w * math.sqrt(rel_i)
+                    for f in range(n_f):
+                        re, im = _turn(v_ * amp_a[0, f] + u * amp_b[0, f], v_ * amp_a[1, f] + u * amp_b[1, f], kmah)
+                        ph = grid.omega[f] * tau
+                        cph = math.cos(ph)
+                        sph = math.sin(ph)
+                        acc.s_re[slot, group, f, v] += amp * (re * cph - im * sph)
+                        acc.s_im[slot, group, f, v] += amp * (re * sph + im * cph)
+    return count
+
+
+class BeamTables(NamedTuple):
+    """Per-band tables the per-ray amplitude needs.
+
+    q_table, q_grid : complex spherical-wave coefficient per (material, band) (acoustics.ground.build_q_table;
+        materials beyond the table are refused when the job is prepared); alpha : (F,) energy absorption
+        coefficient, 1/m (amplitude factor exp(-alpha s / 2)); chord_m : largest chord length, m.
+    """
+
+    q_table: np.ndarray
+    q_grid: np.ndarray
+    alpha: np.ndarray
+    chord_m: float
+
+
+class BeamRay(NamedTuple):
+    """Per-ray scratch of the beam field: the last sample and the one being built, with amplitudes.
+
+    last, cur : (SAMPLE_SIZE,); amp_last, amp_cur : (2, F); ist : (3,) int64 =
+    [has a last sample, caustics passed (kmah), sign of the last non-zero det[X1, X2, T] (+1/-1/0)].
+    """
+
+    last: np.ndarray
+    cur: np.ndarray
+    amp_last: np.ndarray
+    amp_cur: np.ndarray
+    ist: np.ndarray
+
+
+@nb.njit(**NJIT_FLAGS)
+def new_ray(n_f):
+    return BeamRay(
+        np.zeros(SAMPLE_SIZE), np.zeros(SAMPLE_SIZE), np.zeros((2, n_f)), np.zeros((2, n_f)), np.zeros(3, np.int64)
+    )
+
+
+@nb.njit(**NJIT_FLAGS)
+def _amplitude(tabs, arc, n_refl, refl_cos, refl_mat, out):
+    """Per-band amplitude factor at arc length ``arc``: product of Q over the ray's reflections times
+    exp(-alpha s / 2) (no caustic phase: see deposit_chord's kmah)."""
+    n_f = out.shape[1]
+    for f in range(n_f):
+        a = math.exp(-0.5 * tabs.alpha[f] * arc)
+        re = a
+        im = 0.0
+        for j in range(min(n_refl, refl_cos.shape[0])):
+            mat = refl_mat[j]
+            if mat <= 0:
+                continue
+            qr, qi = q_lookup(tabs.q_table, tabs.q_grid, mat, f, refl_cos[j], arc)
+            re, im = re * qr - im * qi, re * qi + im * qr
+        out[0, f] = re
+        out[1, f] = im
+
+
+@nb.njit(**NJIT_FLAGS)
+def ray_sample(grid, acc, slot, tabs, ray, x, tangent, time, arc, slow, par, n_refl, refl_cos, refl_mat,
+               launch_cos, start_new):
+    """Record a sample of the ray and deposit the chord from the previous one (unless start_new).
+
+    x, tangent : (3,) position (m) and unit tangent; time (s), arc (m), slow = 1/c (s/m) there;
+    par : (12,) paraxial derivatives (engine/kernels/paraxial.py); n_refl : reflections so far (their
+    incidence cosines and materials in refl_cos, refl_mat). start_new: the sample starts a new chord
+    (launch, or the outgoing side of a reflection). Returns the number of points reached.
+    """
+    cur = ray.cur
+    for i in range(3):
+        cur[S_X + i] = x[i]
+        cur[S_T + i] = tangent[i]
+    cur[S_TIME] = time
+    cur[S_ARC] = arc
+    for i in range(6):
+        cur[S_X1 + i] = par[i]
+        cur[S_P1 + i] = par[6 + i]
+    cur[S_SLOW] = slow
+    det = signed_tube(cur)
+    sign = 1 if det > 0.0 else (-1 if det < 0.0 else 0)
+    if sign != 0:
+        # a reflection mirrors the tube (det changes sign without a caustic): a new chord only resets the
+        # reference sign
+        if ray.ist[2] != 0 and sign != ray.ist[2] and not start_new:
+            ray.ist[1] += 1
+        ray.ist[2] = sign
+    cur[S_JSIGN] = sign
+    _amplitude(tabs, arc, n_refl, refl_cos, refl_mat, ray.amp_cur)
+    reached = 0
+    if ray.ist[0] != 0 and not start_new:
+        kmah = ray.ist[1]
+        group = chord_group(grid.n_refl, n_refl, kmah)
+        reached = deposit_chord(grid, acc, slot, ray.last, cur, ray.amp_last, ray.amp_cur, group, kmah, launch_cos)
+    for i in range(SAMPLE_SIZE):
+        ray.last[i] = cur[i]
+    for f in range(ray.amp_cur.shape[1]):
+        ray.amp_last[0, f] = ray.amp_cur[0, f]
+        ray.amp_last[1, f] = ray.amp_cur[1, f]
+    ray.ist[0] = 1
+    return reached

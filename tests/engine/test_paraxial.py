@@ -1,0 +1,169 @@
+"""Paraxial rays (docs/physics.md §10) against their oracle: central differences of launches.
+
+Each ray's final paraxial state (X_k = dx/dgamma_k, P_k = dp/dgamma_k, p = n T) must be the exact
+derivative of what the tracer computes. The oracle traces the same ray launched 1e-6 rad away in
+elevation and in azimuth, on both sides, and differentiates the final states. Rays end on an open face
+of the domain (a long time limit), so both sides are compared on the same face plane: the kernel's
+derivatives there are the "on the face" ones (docs/physics.md §10). A perturbed ray may pass an edge
+on the other side (a kink of the piecewise map): such rays (a different number of cell crossings or
+reflections) are left out, and the test asserts that most rays are compared.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import bentray  # noqa: F401
+from bentray.engine.constants import STATUS_EXITED
+from bentray.engine.media import build_media, build_terrain_media
+from bentray.engine.stages import load_surfaces
+from bentray.engine.tracer import trace
+from bentray.engine.wind import check_wind
+from bentray.scenes.profile_models import profile_from_spec
+from bentray.scenes.schema import Job
+from bentray.scenes.wind_models import wind_from_spec
+
+H = 1e-6  # rad, launch-angle step of the central differences
+TOL = 1e-6  # relative agreement asked by the issue (measured: see test docstrings)
+
+
+def _job(profile: dict, representation: str, *, terrain: str | None = None, wind: dict | None = None) -> Job:
+    scene: dict = {"domain": {"min": [-20, -200, 0], "max": [600, 200, 150]}, "ground": {"kind": "flat"}}
+    if terrain is not None:
+        scene = {"builtin": terrain}
+    spec = {
+        "name": "paraxial",
+        "scene": scene,
+        "profile": profile,
+        "sources": [{"position": [0.0, 0.0, 2.0]}],
+        "rays": {"elevation_deg": {"min": -5, "max": 5, "count": 3}, "max_time_s": 30.0, "max_reflections": 20},
+        "solver": {"curve": "parabolic", "representation": representation},
+        "outputs": ["report"],
+    }
+    if wind is not None:
+        spec["wind"] = wind
+    return Job.model_validate(spec)
+
+
+def _media(job: Job):
+    profile = profile_from_spec(job.profile)
+    lo = np.asarray(job.scene.box.min, float)
+    hi = np.asarray(job.scene.box.max, float)
+    wind = wind_from_spec(job.wind) if job.wind is not None else None
+    surfaces = load_surfaces(job)
+    if surfaces is not None:
+        media = build_terrain_media(profile, "parabolic", job.solver, lo, hi, surfaces, top=job.scene.top.kind)
+    else:
+        media = build_media(profile, "parabolic", job.solver, lo, hi, ground="reflect", top=job.scene.top.kind, wind=wind)
+    return media, profile, wind
+
+
+def _directions(el: np.ndarray, az: np.ndarray) -> np.ndarray:
+    return np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+
+
+def _compare(job: Job, src: np.ndarray, el_deg: np.ndarray, az_deg: np.ndarray, tol: float = TOL) -> dict:
+    media, profile, wind = _media(job)
+    el0 = np.radians(el_deg)
+    az0 = np.radians(az_deg)
+    n = el0.size
+    # central ray, then +-H in elevation, then +-H in azimuth
+    els = np.concatenate([el0, el0 + H, el0 - H, el0, el0])
+    azs = np.concatenate([az0, az0, az0, az0 + H, az0 - H])
+    dirs = _directions(els, azs)
+    origins = np.repeat(src[None], dirs.shape[0], axis=0)
+    cells = media.locate(src[None])
+    assert cells[0] >= 0
+    res = trace(
+        media.mesh,
+        "parabolic",
+        profile.c_ref,
+        origins,
+        dirs,
+        np.full(dirs.shape[0], cells[0]),
+        max_time_s=job.rays.max_time_s,
+        max_reflections=job.rays.max_reflections,
+        paraxial=True,
+        wind=check_wind(wind) if wind is not None else None,
+    )
+    par = res.paraxial
+    assert par is not None
+    p_vec = res.direction * par[:, 12:13]
+    blocks = [slice(k * n, (k + 1) * n) for k in range(5)]
+    same = np.ones(n, bool)
+    for b in blocks[1:]:
+        same &= (res.crossings[b] == res.crossings[blocks[0]]) & (res.reflections[b] == res.reflections[blocks[0]])
+        same &= res.status[b] == STATUS_EXITED
+    same &= res.status[blocks[0]] == STATUS_EXITED
+    worst = 0.0
+    for k, (plus, minus) in enumerate([(blocks[1], blocks[2]), (blocks[3], blocks[4])]):
+        fd_x = (res.position[plus] - res.position[minus]) / (2 * H)
+        fd_p = (p_vec[plus] - p_vec[minus]) / (2 * H)
+        x_k = par[blocks[0], 3 * k : 3 * k + 3]
+        p_k = par[blocks[0], 6 + 3 * k : 9 + 3 * k]
+        scale_x = np.linalg.norm(x_k, axis=1)
+        scale_p = np.linalg.norm(p_k, axis=1) + 1e-3
+        err_x = np.linalg.norm(fd_x - x_k, axis=1) / scale_x
+        err_p = np.linalg.norm(fd_p - p_k, axis=1) / scale_p
+        worst = max(worst, float(np.max(err_x[same], initial=0.0)), float(np.max(err_p[same], initial=0.0)))
+    return {
+        "compared": int(same.sum()),
+        "rays": n,
+        "worst_rel": worst,
+        "reflections": int(res.reflections[blocks[0]][same].sum()),
+        "crossings": int(res.crossings[blocks[0]][same].sum()),
+    }
+
+
+FAN_EL = np.array([-4.0, -2.0, -1.0, 0.5, 2.0, 4.0, 8.0])
+FAN_AZ = np.array([0.0, 7.0, -11.0, 20.0, 3.0, -30.0, 15.0])
+LOG_DOWN = {"kind": "log", "c0": 340.0, "b": 1.0, "z_g": 1.0}
+
+
+@pytest.mark.parametrize("representation", ["slabs", "tets"])
+def test_paraxial_matches_central_differences_downward_log(representation):
+    """A-LD log profile (downward refraction: several ground reflections per ray) on slabs (one gradient
+    jump per layer face) and on Delaunay tets (gradients jump at every face): exact derivatives."""
+    job = _job(LOG_DOWN, representation)
+    out = _compare(job, np.array([0.0, 0.0, 2.0]), FAN_EL, FAN_AZ)
+    assert out["compared"] >= 5, out
+    assert out["reflections"] >= 5, out
+    assert out["worst_rel"] < TOL, out
+
+
+def test_paraxial_homogeneous_is_the_spherical_spreading():
+    """Homogeneous air, no reflection: |X_el| = r, |X_az| = r cos el at the exit point (closed form)."""
+    job = _job({"kind": "homogeneous", "c0": 340.0}, "uniform")
+    media, profile, _ = _media(job)
+    el = np.radians(np.array([5.0, 20.0, 40.0]))
+    az = np.radians(np.array([0.0, 30.0, -60.0]))
+    src = np.array([0.0, 0.0, 2.0])
+    res = trace(
+        media.mesh, "parabolic", 340.0, np.repeat(src[None], 3, 0), _directions(el, az),
+        np.full(3, media.locate(src[None])[0]), max_time_s=30.0, max_reflections=0, paraxial=True,
+    )
+    r = np.linalg.norm(res.position - src, axis=1)
+    x_el = res.paraxial[:, 0:3]
+    x_az = res.paraxial[:, 3:6]
+    t = res.direction
+    perp = lambda v: v - np.sum(v * t, axis=1)[:, None] * t  # noqa: E731
+    np.testing.assert_allclose(np.linalg.norm(perp(x_el), axis=1), r, rtol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(perp(x_az), axis=1), r * np.cos(el), rtol=1e-12)
+
+
+def test_paraxial_matches_central_differences_over_terrain():
+    """The built-in ridge scene (terrain tets, reflections off sloping faces)."""
+    job = _job(LOG_DOWN, "auto", terrain="ridge")
+    lo = np.asarray(job.scene.box.min, float)
+    hi = np.asarray(job.scene.box.max, float)
+    src = np.array([lo[0] + 0.2 * (hi[0] - lo[0]), 0.5 * (lo[1] + hi[1]), 0.0])
+    media, _, _ = _media(job)
+    # 3 m above the ground under the source
+    from bentray.engine.mesh.terrain import terrain_height_function
+
+    surfaces = load_surfaces(job)
+    src[2] = float(terrain_height_function(surfaces.terrain, lo, hi)(src[None, :2])[0]) + 3.0
+    out = _compare(job, src, FAN_EL, FAN_AZ)
+    assert out["compared"] >= 4, out
+    assert out["worst_rel"] < TOL, out
