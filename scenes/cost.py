@@ -6,16 +6,20 @@ elementary operations, with the formula stated where it is computed:
 - ``paths_bytes``: recorded ray paths, ``rays x path_samples x PATH_SAMPLE_BYTES`` (measured: 20,000
   rays x 400 samples held 828 MB, i.e. 103.5 B per sample with the result arrays and the VTK copy).
 - ``field_bytes``: the field accumulators, one set per thread plus the collapsed total and one batch's
-  partial: ``(threads + 2) x points x (bands + 1) x 8 B`` incoherent; coherent mode keeps 5 records
-  of 8 B per arrival group (at most 8) and point.
+  partial. Voxels: ``(threads + 2) x points x (bands + 1) x 8 B`` incoherent; coherent mode keeps 5
+  records of 8 B per arrival group (at most 8) and point. Beams (the default method): per point,
+  3 x (reflection groups, at most 4) KMAH groups x bands x (2 coherent + 1 incoherent arrays) x 8 B.
 - ``rays_bytes``: the per-ray final state, ``rays x RAY_STATE_BYTES``.
-- ``field_deposits``: field samples, ``rays x crossings x (grid diagonal + 2 x largest cell) / h``
-  where h = sample_fraction x smallest field spacing (segments are cut into pieces of length h where
-  they pass the grid) and crossings = min(max_reflections + 1, 1 + c_max max_time_s / smallest domain
-  extent) (each reflection can bring the ray back through the grid).
+- ``field_deposits``: field samples. Voxels: ``rays x crossings x (grid diagonal + 2 x largest cell) /
+  h`` where h = sample_fraction x smallest field spacing (segments are cut into pieces of length h where
+  they pass the grid). Beams: ``crossings x (4 x points x sources + 8 x rays x (grid diagonal + 2 x
+  largest cell) / chord)`` (the beams of a fan tile space; a stencil per chord).
+  crossings = min(max_reflections + 1, 1 + c_max max_time_s / smallest domain extent): each reflection
+  can bring the ray back through the grid.
 - ``ray_steps``: ``rays x max_steps`` is a bound nobody reaches, so the work estimate of the trace is
-  ``rays x crossings x cells per crossing`` with cells per crossing = domain diagonal / smallest cell
-  (``solver.d_min_m``, else domain extent / 200), capped by ``max_steps``.
+  ``rays x crossings x cells per crossing`` with cells per crossing = domain diagonal / (largest extent
+  / 200) (the tets default smallest cell; adaptive sizings make few cells where the medium is smooth, so
+  ``solver.d_min_m`` does not enter), capped by ``max_steps``.
 
 :func:`cost_problems` compares them with :class:`CostLimits` and returns one ``field.path: reason``
 line per exceeded budget, with the estimate and the limit in the text.
@@ -100,17 +104,30 @@ def estimate_cost(job: Any, threads: int) -> CostEstimate:
     if spec is not None:
         n_points = spec.n_points
         n_bands = len(spec.frequencies_hz)
-        if spec.mode == "coherent":
-            groups = min(job.rays.max_reflections, 7) + 1
-            field_bytes = (threads + 2) * n_points * (groups * 5 + 1) * 8
-        else:
-            powered = sum(1 for s in job.sources if s.power_db is not None)
-            acc = n_bands * (2 if powered > 1 else 1)
-            field_bytes = (threads + 2) * n_points * (acc + 1) * 8
-        h = spec.sample_fraction * min(spec.spacing)
+        method = getattr(spec, "method", "voxels")
         grid_diag = math.sqrt(sum(((n - 1) * s) ** 2 for n, s in zip(spec.shape, spec.spacing, strict=True)))
         cell = job.solver.d_max_m if job.solver.d_max_m is not None else max(extent)
-        deposits = n_rays * crossings * (grid_diag + 2.0 * min(cell, diagonal)) / h
+        near_grid = grid_diag + 2.0 * min(cell, diagonal)  # path length of one crossing near the grid
+        if method == "beams":
+            # engine/beam_field.py: per slot, (reflection groups <= 4) x (KMAH 3) x bands x points x 8 B for
+            # each of the coherent (2 arrays) and incoherent (1) sums, plus two per-point arrays
+            groups = 3 * (min(job.rays.max_reflections, 3) + 1)
+            arrays = {"coherent": 2, "incoherent": 1}.get(spec.mode, 3)
+            field_bytes = (threads + 2) * n_points * (groups * n_bands * arrays + groups + 1) * 8
+            chord = spec.chord_m if spec.chord_m is not None else min(max(2.0 * min(spec.spacing), 1.0), 10.0)
+            # each chord deposits into the points its beam owns: on average a few per point of the grid
+            # and crossing for every source (the beams of a fan tile space), plus a stencil per chord
+            deposits = crossings * (4.0 * n_points * len(job.sources) + 8.0 * n_rays * near_grid / chord)
+        else:
+            if spec.mode == "coherent":
+                groups = min(job.rays.max_reflections, 7) + 1
+                field_bytes = (threads + 2) * n_points * (groups * 5 + 1) * 8
+            else:
+                powered = sum(1 for s in job.sources if s.power_db is not None)
+                acc = n_bands * (2 if powered > 1 else 1)
+                field_bytes = (threads + 2) * n_points * (acc + 1) * 8
+            h = spec.sample_fraction * min(spec.spacing)
+            deposits = n_rays * crossings * near_grid / h
     d_min = max(extent) / 200.0
     steps = n_rays * min(float(job.rays.max_steps), crossings * max(diagonal / d_min, 1.0))
     return CostEstimate(paths, int(field_bytes), n_rays * RAY_STATE_BYTES, float(deposits), float(steps))

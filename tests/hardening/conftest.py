@@ -46,10 +46,12 @@ def below_terrain_job() -> dict:
     return job
 
 
-def field_job(spacing: float, shape=(2, 2, 1)) -> dict:
+def field_job(spacing: float, shape=(2, 2, 1), method: str = "voxels") -> dict:
+    """A small field job; the probe's unbounded case is the voxel method (segments cut into pieces of
+    sample_fraction x spacing)."""
     job = base_job()
     job["rays"]["azimuth_deg"] = {"min": -10, "max": 10, "count": 3}
-    job["field"] = {"origin": [100, 0, 1], "spacing": [spacing] * 3, "shape": list(shape)}
+    job["field"] = {"origin": [100, 0, 1], "spacing": [spacing] * 3, "shape": list(shape), "method": method}
     job["outputs"] = ["field", "report"]
     return job
 
