@@ -250,13 +250,15 @@ def prepare(
     c_ref: float,
     ground_sound_speed: float,
     n_face_materials: int,
+    ground_z: np.ndarray | None = None,
 ) -> BeamBuffers:
     """The beam accumulator template of a job (no slots: each batch allocates its own).
 
     elevation_deg, azimuth_deg : the launch grid's axes (degrees); source_index : (n_rays,) int;
     source_powers_w : (n_src, F) W or None; materials : flow resistivity per face material (None rigid);
     n_face_materials : 1 + the largest material index the mesh's faces carry (checked against the table:
-    a mismatch would read past it).
+    a mismatch would read past it). ground_z : (nx, ny) ground height (m) under each grid column for
+    ``heights = "above_ground"`` (None: absolute heights).
     """
     if n_face_materials > len(materials):
         raise ValueError(
@@ -266,7 +268,9 @@ def prepare(
     freqs = np.asarray(spec.frequencies_hz, float)
     w_min = spec.beam_min_width_m if spec.beam_min_width_m is not None else default_min_width_m(freqs, c_ref)
     chord = spec.chord_m if spec.chord_m is not None else default_chord_m(grid.spacing)
-    bgrid = beam_grid(grid, spec.mode, freqs, c_ref, launch_steps(elevation_deg, azimuth_deg), w_min, max_reflections)
+    bgrid = beam_grid(
+        grid, spec.mode, freqs, c_ref, launch_steps(elevation_deg, azimuth_deg), w_min, max_reflections, ground_z
+    )
     from bentray.engine.field import energy_absorption  # the field stage's ISO 9613-1 per band
 
     tables = beam_tables(freqs, materials, energy_absorption(spec), chord, ground_sound_speed)

@@ -265,6 +265,22 @@ def _materials(job: Job, surfaces: SceneSurfaces | None) -> list[float | None]:
     return [None, job.scene.ground.flow_resistivity]
 
 
+def _grid_ground_z(job: Job, surfaces: SceneSurfaces | None) -> np.ndarray:
+    """(nx, ny) ground height (m) under each column of the field grid: the terrain, else the flat ground."""
+    spec = job.field
+    assert spec is not None
+    lo, hi = _domain(job)
+    nx, ny = spec.shape[0], spec.shape[1]
+    if surfaces is None or surfaces.terrain is None:
+        return np.full((nx, ny), float(lo[2]))
+    from bentray.engine.mesh.terrain import terrain_height_function
+
+    gx = spec.origin[0] + spec.spacing[0] * np.arange(nx)
+    gy = spec.origin[1] + spec.spacing[1] * np.arange(ny)
+    xy = np.stack(np.meshgrid(gx, gy, indexing="ij"), axis=-1).reshape(-1, 2)
+    return np.asarray(terrain_height_function(surfaces.terrain, lo, hi)(xy), float).reshape(nx, ny)
+
+
 def stage_field_setup(
     job: Job,
     profile: Profile,
@@ -304,6 +320,7 @@ def stage_field_setup(
                 c_ref=float(profile.c_ref),
                 ground_sound_speed=float(profile.sound_speed(ground_point)[0]),
                 n_face_materials=int(mesh.face_material.max()) + 1 if mesh.face_material.size else 1,
+                ground_z=_grid_ground_z(job, surfaces) if spec.heights == "above_ground" else None,
             )
             return FieldSetup(mesh, beam_template, powers, materials)
         buffers = field_stage.prepare(
@@ -440,12 +457,19 @@ def stage_field(
             field_arrays = field_stage.finalize(
                 spec, buffers, profile.sound_speed(grid_points), result, setup.powers, setup.materials
             )
+        above = spec.heights == "above_ground"
         field_arrays.preview = {
             "source_xyz": list(job.sources[0].position),
-            "receiver_z": float(lo[2] + spec.receiver_height_m),
-            "title": f"{job.name}: {profile.kind} profile, {result.n_rays} rays",
+            "receiver_z": float((0.0 if above else lo[2]) + spec.receiver_height_m),
+            "title": f"{job.name}: {profile.kind} profile, {result.n_rays} rays"
+            + (" (heights above the ground)" if above else ""),
         }
-        if surfaces is not None and surfaces.terrain is not None:
+        if above:
+            field_arrays.field_data["grid"] = (
+                "point (i,j,k) at x, y = origin + (i,j)*spacing and at origin_z + k*spacing_z metres ABOVE THE "
+                "GROUND under it (terrain-following map); NaN: no beam reached the point"
+            )
+        if surfaces is not None and surfaces.terrain is not None and not above:
             from bentray.engine.mesh.terrain import terrain_height_function
 
             g = buffers.grid

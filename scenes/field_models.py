@@ -43,6 +43,9 @@ class FieldSpec(BaseModel):
     the bench's reference point; coherent and incoherent). ``chord_m``: beam chord length along the
     rays (default twice the smallest spacing within [1, 10] m); ``beam_min_width_m``: smallest beam
     half-width at caustics (default half a wavelength at the bands' geometric-mean frequency).
+    ``heights``: "absolute" (world z) or "above_ground" (the map product: point (i, j, k) sits at
+    ``origin_z + k * spacing_z`` above the ground under it, terrain included; beams only; field.vti then
+    holds the grid in (x, y, height above ground)).
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -53,6 +56,7 @@ class FieldSpec(BaseModel):
     frequencies_hz: list[float] = Field(default_factory=lambda: list(OCTAVE_BANDS_HZ), min_length=1, max_length=64)
     mode: Literal["incoherent", "coherent", "semicoherent"] = "incoherent"
     method: Literal["beams", "voxels"] = "beams"
+    heights: Literal["absolute", "above_ground"] = "absolute"
     chord_m: float | None = Field(default=None, ge=0.05, le=100.0)
     beam_min_width_m: float | None = Field(default=None, ge=1e-3, le=100.0)
     humidity_percent: float = Field(default=70.0, ge=0.0, le=100.0)
@@ -88,6 +92,8 @@ class FieldSpec(BaseModel):
     def _method_modes(self) -> FieldSpec:
         if self.method == "voxels" and self.mode == "semicoherent":
             raise ValueError("mode 'semicoherent' needs method 'beams'")
+        if self.method == "voxels" and self.heights == "above_ground":
+            raise ValueError("heights 'above_ground' needs method 'beams'")
         return self
 
     @field_validator("frequencies_hz")

@@ -70,6 +70,12 @@ def _extreme(quick: bool, cache: dict[str, Any]) -> Section:
     return extreme.run(quick)
 
 
+def _field_error(quick: bool, cache: dict[str, Any]) -> Section:
+    from bentray.engine.bench import field_error
+
+    return field_error.run(quick)
+
+
 def _linked_surfaces(quick: bool, cache: dict[str, Any]) -> Section:
     from bentray.engine.bench import linked_surfaces
 
@@ -86,6 +92,7 @@ SECTIONS: dict[str, tuple[str, Callable[[bool, dict[str, Any]], Section]]] = {
     "throughput": ("Throughput", _throughput),
     "extreme": ("Stiff and extreme cases", _extreme),
     "table1": ("Built-in scenes end to end (Table 1)", _table1),
+    "field_error": ("Field error against run time", _field_error),
     "linked_surfaces": ("Appendix C: embedded vs linked surfaces", _linked_surfaces),
 }
 
