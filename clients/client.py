@@ -33,11 +33,12 @@ _DOWNLOAD_CHUNK = 1 << 20
 class ServiceError(Exception):
     """An HTTP error from the service: ``status`` code, ``code`` (e.g. ``invalid_job``) and ``detail`` text."""
 
-    def __init__(self, status: int, code: str, detail: str) -> None:
+    def __init__(self, status: int, code: str, detail: str, retry_after_s: float | None = None) -> None:
         super().__init__(f"HTTP {status} {code}: {detail}")
         self.status = status
         self.code = code
         self.detail = detail
+        self.retry_after_s = retry_after_s  # a 429's Retry-After (seconds), else None
 
 
 class WaitTimeout(TimeoutError):
@@ -53,7 +54,12 @@ def _raise_for(response: httpx.Response) -> None:
         code, detail = str(body.get("error", "error")), str(body.get("detail", response.text))
     except (ValueError, AttributeError):
         code, detail = "error", response.text or response.reason_phrase
-    raise ServiceError(response.status_code, code, detail)
+    retry: float | None = None
+    try:
+        retry = float(response.headers["retry-after"])
+    except (KeyError, ValueError):
+        retry = None
+    raise ServiceError(response.status_code, code, detail, retry)
 
 
 def job_input_files(job: dict[str, Any]) -> list[str]:

@@ -185,6 +185,13 @@ def test_queue_full_answers_429(tmp_path):
             r = http.post("/v1/jobs", json=tiny_job(name="q2"))
             assert r.status_code == 429 and r.json()["error"] == "queue_full"
             assert r.headers["retry-after"] == "7"  # issue 15: a 429 says when to retry
+            from bentray.clients.client import BentrayClient, ServiceError
+
+            job_file = tmp_path / "q.json"
+            job_file.write_text(json.dumps(tiny_job(name="qc")))
+            with BentrayClient(srv.url) as client, pytest.raises(ServiceError) as info:
+                client.submit(job_file)
+            assert info.value.status == 429 and info.value.retry_after_s == 7.0
             assert len(http.get("/v1/jobs").json()["jobs"]) == 2
             # cancelling a queued job frees a place at once
             r = http.delete(f"/v1/jobs/{ids[0]}")
