@@ -27,11 +27,15 @@ from multiprocessing.process import BaseProcess
 from pathlib import Path
 from typing import Any
 
-__all__ = ["JobLimits", "ValidationPool", "ValidationTimeout", "check_job_scene", "check_job_text"]
+__all__ = ["JobLimits", "ValidationBusy", "ValidationPool", "ValidationTimeout", "check_job_scene", "check_job_text"]
 
 
 class ValidationTimeout(Exception):
     """The validation helper did not answer within the time limit (it was killed)."""
+
+
+class ValidationBusy(Exception):
+    """Every validation helper stayed busy for the waiting allowance (the server is overloaded)."""
 
 
 @dataclass(frozen=True)
@@ -230,7 +234,7 @@ class ValidationPool:
                     break
                 left = deadline - time.monotonic()
                 if left <= 0:
-                    raise ValidationTimeout("every validation helper is busy")
+                    raise ValidationBusy("every validation helper is busy")
                 self._cond.wait(left)
         try:
             return _Helper(self._ctx)

@@ -11,12 +11,18 @@ from starlette.concurrency import run_in_threadpool
 from starlette.datastructures import UploadFile
 
 from bentray.service.deps import OwnerDep, ServicesDep
-from bentray.service.errors import InvalidInputError, NotFoundError, UnsupportedMediaError, UploadTooLargeError
+from bentray.service.errors import (
+    InvalidInputError,
+    NotFoundError,
+    QueueFullError,
+    UnsupportedMediaError,
+    UploadTooLargeError,
+)
 from bentray.service.layout import file_name_problem
 from bentray.service.models import AssetInfo
 from bentray.service.openapi import AUTH, BODY, error_responses
 from bentray.service.uploads import UPLOAD_KINDS, default_kind
-from bentray.service.validation import ValidationTimeout
+from bentray.service.validation import ValidationBusy, ValidationTimeout
 
 router = APIRouter(tags=["assets"])
 COPY_CHUNK = 1 << 20
@@ -73,7 +79,7 @@ def _asset_info(record: object) -> AssetInfo:
     status_code=201,
     response_model=AssetInfo,
     openapi_extra=_ASSET_BODY,
-    responses=error_responses(*AUTH, *BODY),
+    responses=error_responses(*AUTH, *BODY, 429),
 )
 async def upload_asset(request: Request, services: ServicesDep, owner: OwnerDep) -> AssetInfo:
     """Upload a terrain, buildings GeoJSON, obstacle mesh or grid profile; jobs name it in their file fields."""
@@ -106,6 +112,8 @@ async def upload_asset(request: Request, services: ServicesDep, owner: OwnerDep)
                 result = await run_in_threadpool(services.validator.run, "upload", str(tmp), kind)
             except ValidationTimeout as exc:
                 raise InvalidInputError.from_lines([f"file: {name}: {exc}"], code="invalid_file") from None
+            except ValidationBusy as exc:
+                raise QueueFullError(f"{exc}; try again later", settings.retry_after_seconds) from None
             if not result["ok"]:
                 raise InvalidInputError.from_lines(result["lines"], code=result["code"])
             os.replace(tmp, layout.asset_path(owner, name))

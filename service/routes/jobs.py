@@ -24,7 +24,7 @@ from bentray.service.openapi import AUTH, BODY, error_responses
 from bentray.service.routes.assets import save_upload
 from bentray.service.store import JobRecord, JobStatus, QueueFull, new_job_id
 from bentray.service.uploads import UploadKind, default_kind
-from bentray.service.validation import JobLimits, ValidationTimeout
+from bentray.service.validation import JobLimits, ValidationBusy, ValidationTimeout
 
 __all__ = ["MEDIA_TYPES", "router"]
 
@@ -200,6 +200,8 @@ def _validate(services: Services, text: str, owner: str, uploaded: dict[str, Pat
         second = services.validator.run("scene", text, str(inputs), checks)
     except ValidationTimeout as exc:
         raise InvalidInputError.from_lines([f"job: {exc}; the job is refused"], code="validation_timeout") from None
+    except ValidationBusy as exc:
+        raise QueueFullError(f"{exc}; try again later", services.settings.retry_after_seconds) from None
     if not second["ok"]:
         raise InvalidInputError.from_lines(second["lines"], code=second["code"])
     return str(first["name"])

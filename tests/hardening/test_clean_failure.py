@@ -87,3 +87,19 @@ def test_stale_uploads_and_orphan_job_folders_are_removed_at_start(tmp_path):
     assert not upload.exists() and not orphan.exists() and fresh.exists()  # a submit may be under way
     services.validator.close()
     services.store.close()
+
+
+def test_busy_validation_helpers_answer_busy_not_a_hang():
+    from bentray.service.validation import ValidationBusy
+
+    pool = ValidationPool(timeout_s=0.2, size=1)
+    try:
+        pool.start()
+        held = pool._take(time.monotonic() + 1.0)  # another request holds the only helper
+        t0 = time.perf_counter()
+        with pytest.raises(ValidationBusy):  # the routes answer it as 429 with Retry-After
+            pool.run("text", "{}", LIMITS)
+        assert time.perf_counter() - t0 < 2.0
+        pool._give_back(held)
+    finally:
+        pool.close()
