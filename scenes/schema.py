@@ -451,7 +451,7 @@ class Job(_Model):
     sources: list[Source] = Field(min_length=1, max_length=MAX_SOURCES)
     rays: Rays
     solver: Solver = Field(default_factory=Solver)
-    outputs: list[OutputName] = Field(default_factory=lambda: ["rays", "report"], min_length=1)
+    outputs: list[OutputName] = Field(default_factory=lambda: ["rays", "report"], min_length=1, max_length=16)
     field: FieldSpec | None = None
 
     @field_validator("name")
