@@ -1,13 +1,14 @@
 """The ``bentray`` command line.
 
-    bentray run JOB.json --out DIR [--threads N] [--dask ADDR]
+    bentray run JOB.json --out DIR [--threads N] [--dask ADDR] [--check]
     bentray sweep JOB.json --param PATH --values V1,V2,... --out DIR [--dask ADDR]
     bentray bench --out DIR [--quick] [--only NAME ...]
     bentray scenes [--resolution medium|high] [--json] [--job NAME]
 
-Exit status: 0 success; 2 invalid command line or job file (unreadable, invalid JSON or schema
-errors, printed one ``field.path: reason`` per line on stderr); 1 any other error during the run
-(one line on stderr; ``--traceback`` shows the full traceback instead).
+Exit status: 0 success; 2 invalid command line or job file (unreadable, invalid JSON, schema errors,
+scene, medium or cost-model problems and any input error the engine finds, printed one
+``field.path: reason`` per line on stderr); 1 any other error during the run (one line on stderr;
+``--traceback`` shows the full traceback instead); 143 SIGTERM (temporary folders removed).
 
 Subcommands register themselves in :data:`COMMANDS` (more to come: scenes, bench, serve, submit).
 Heavy imports (the engine, numba, pyvista) happen inside the command that needs them.
@@ -20,13 +21,34 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import bentray
 from bentray.engine.errors import BentrayError
 
+if TYPE_CHECKING:
+    from bentray.engine.result import JobOutcome
+    from bentray.scenes.schema import Job
+
 # Errors reported as one line with exit status 1: bentray's own (engine/errors.py) and the usual
 # input/resource failures. Anything else is a bug and keeps its traceback.
-_RUN_ERRORS: tuple[type[BaseException], ...] = (BentrayError, ValueError, OSError, RuntimeError, MemoryError)
+_RUN_ERRORS: tuple[type[BaseException], ...] = (
+    BentrayError,
+    ValueError,
+    OSError,
+    RuntimeError,
+    MemoryError,
+    OverflowError,
+    ArithmeticError,
+)
+
+
+class Terminated(BaseException):
+    """SIGTERM: unwinds like Ctrl-C so that staging folders beside --out are removed (exit 143)."""
+
+
+def _on_sigterm(signum: int, frame: object) -> None:
+    raise Terminated()
 
 
 DASK_SCHEDULER_ENV = "BENTRAY_DASK_SCHEDULER"  # default of --dask (bentray run, bentray sweep)
@@ -63,13 +85,13 @@ def _positive_int(text: str) -> int:
 def _set_threads(n: int) -> None:
     import numba
 
-    available = numba.config.NUMBA_NUM_THREADS
+    available = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
     if n > available:
         raise CommandError(f"--threads {n} exceeds the {available} threads numba can use", code=2)
     numba.set_num_threads(n)
 
 
-def _load(job_path: Path):
+def _load(job_path: Path) -> Job:
     from pydantic import ValidationError
 
     from bentray.scenes.schema import JobFileError, format_validation_error, load_job
@@ -84,7 +106,7 @@ def _load(job_path: Path):
         ) from None
 
 
-def _summary(job, outcome, written: list[Path], wall_s: float) -> str:
+def _summary(job: Job, outcome: JobOutcome, written: list[Path], wall_s: float) -> str:
     trace = outcome.trace
     lines = [f"job {job.name}: {trace.n_rays} rays in {wall_s:.2f} s"]
     counts = {name: n for name, n in trace.status_counts().items() if n}
@@ -102,6 +124,24 @@ def _summary(job, outcome, written: list[Path], wall_s: float) -> str:
     return "\n".join(lines)
 
 
+def _check(job: Job, job_path: Path) -> None:
+    """The checks the service runs at submit (scene, sources, medium, cost model with this machine's
+    memory): one ``field.path: reason`` line each, exit status 2."""
+    import numba
+
+    from bentray.scenes.cost import CostLimits, cost_problems, machine_memory_bytes
+    from bentray.scenes.job_checks import scene_problems
+
+    machine = machine_memory_bytes()
+    limits = CostLimits(
+        memory_bytes=int(0.8 * machine) if machine > 0 else CostLimits().memory_bytes,
+        threads=int(numba.get_num_threads()),
+    )
+    lines = scene_problems(job, job_path.absolute().parent) + cost_problems(job, limits)
+    if lines:
+        raise CommandError(f"{job_path}: invalid job ({len(lines)} error(s)):\n" + "\n".join(lines), code=2)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     job_path = Path(args.job)
     job = _load(job_path)
@@ -110,24 +150,37 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise CommandError(f"--out {out_dir} exists and is not a directory", code=2)
     if args.threads is not None:
         _set_threads(args.threads)
+    _check(job, job_path)
+    if args.check:
+        print(f"{job_path}: valid job ({job.n_rays:,} rays)")
+        return 0
 
+    from bentray.engine.errors import JobInputError
     from bentray.engine.executors import make_executor
     from bentray.engine.run import run_job
     from bentray.engine.writers import write_outcome
 
     executor = make_executor(dask_address(args.dask))
     t0 = time.perf_counter()
-    outcome = run_job(job, job_path.absolute().parent, executor=executor)
+    try:
+        outcome = run_job(job, job_path.absolute().parent, executor=executor)
+    except JobInputError as exc:  # the job cannot run as asked: its lines name the field
+        raise CommandError(f"{job_path}: invalid job:\n{exc}", code=2) from None
     written = write_outcome(outcome, list(job.outputs), out_dir)
     print(_summary(job, outcome, written, time.perf_counter() - t0))
     return 0
 
 
-def _add_run(sub: argparse._SubParsersAction) -> None:
+def _add_run(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("run", help="trace one job file and write its outputs", description="Trace one job.")
     p.add_argument("job", help="job file (JSON, see scenes/examples/)")
     p.add_argument("--out", required=True, help="output directory (created; files replaced all-or-nothing)")
     p.add_argument("--threads", type=_positive_int, default=None, help="numba threads (default: all)")
+    p.add_argument(
+        "--check",
+        action="store_true",
+        help="validate only (schema, scene, medium, cost model; the service's submit checks) and exit",
+    )
     p.add_argument(
         "--dask",
         metavar="ADDR",
@@ -158,7 +211,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_bench(sub: argparse._SubParsersAction) -> None:
+def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     from bentray.engine.bench.runner import SECTIONS
 
     p = sub.add_parser(
@@ -210,7 +263,7 @@ def cmd_scenes(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_scenes(sub: argparse._SubParsersAction) -> None:
+def _add_scenes(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     from bentray.scenes.library.registry import BUILTIN_SCENES, RESOLUTIONS
 
     p = sub.add_parser(
@@ -231,10 +284,14 @@ def _add_scenes(sub: argparse._SubParsersAction) -> None:
 
 
 # Each entry adds one subcommand parser (with set_defaults(func=handler)).
-COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_run, _add_bench, _add_scenes]
+COMMANDS: list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]], None]] = [
+    _add_run,
+    _add_bench,
+    _add_scenes,
+]
 
 
-def _add_sweep(sub: argparse._SubParsersAction) -> None:
+def _add_sweep(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     from bentray.clients.sweep_cli import add_sweep  # bentray sweep (one job per parameter value)
 
     add_sweep(sub)
@@ -243,7 +300,7 @@ def _add_sweep(sub: argparse._SubParsersAction) -> None:
 COMMANDS.append(_add_sweep)
 
 
-def _add_service_verbs(sub: argparse._SubParsersAction) -> None:
+def _add_service_verbs(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     from bentray.clients.service_cli import SERVICE_COMMANDS  # serve, submit, status, fetch, cancel
 
     for add in SERVICE_COMMANDS:
@@ -278,8 +335,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     if getattr(args, "func", None) is None:
         parser.print_help(sys.stderr)
         return 2
+    import signal
+
+    try:
+        previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    except ValueError:  # not the main thread: leave signals alone
+        previous = None
     try:
         return int(args.func(args) or 0)
+    except Terminated:
+        print(f"bentray {args.command}: terminated", file=sys.stderr)
+        return 143
+    except RecursionError as exc:
+        if args.traceback:
+            raise
+        print(f"bentray {args.command}: error: input nests too deeply ({exc})", file=sys.stderr)
+        return 2
     except CommandError as exc:
         if args.traceback:
             raise
@@ -294,6 +365,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"bentray {args.command}: interrupted", file=sys.stderr)
         return 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

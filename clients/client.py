@@ -12,6 +12,7 @@ Every call raises :class:`ServiceError` for an HTTP error status, with the serve
 
 from __future__ import annotations
 
+import builtins
 import json
 import sys
 import time
@@ -32,11 +33,12 @@ _DOWNLOAD_CHUNK = 1 << 20
 class ServiceError(Exception):
     """An HTTP error from the service: ``status`` code, ``code`` (e.g. ``invalid_job``) and ``detail`` text."""
 
-    def __init__(self, status: int, code: str, detail: str) -> None:
+    def __init__(self, status: int, code: str, detail: str, retry_after_s: float | None = None) -> None:
         super().__init__(f"HTTP {status} {code}: {detail}")
         self.status = status
         self.code = code
         self.detail = detail
+        self.retry_after_s = retry_after_s  # a 429's Retry-After (seconds), else None
 
 
 class WaitTimeout(TimeoutError):
@@ -52,7 +54,12 @@ def _raise_for(response: httpx.Response) -> None:
         code, detail = str(body.get("error", "error")), str(body.get("detail", response.text))
     except (ValueError, AttributeError):
         code, detail = "error", response.text or response.reason_phrase
-    raise ServiceError(response.status_code, code, detail)
+    retry: float | None = None
+    try:
+        retry = float(response.headers["retry-after"])
+    except (KeyError, ValueError):
+        retry = None
+    raise ServiceError(response.status_code, code, detail, retry)
 
 
 def job_input_files(job: dict[str, Any]) -> list[str]:
@@ -183,7 +190,7 @@ class BentrayClient:
     def get(self, job_id: str) -> JobInfo:
         return JobInfo.model_validate(self._request("GET", f"/v1/jobs/{job_id}").json())
 
-    def list(self, status: str | None = None, limit: int = 100) -> list[JobInfo]:
+    def list(self, status: str | None = None, limit: int = 100) -> builtins.list[JobInfo]:
         params: dict[str, Any] = {"limit": limit}
         if status is not None:
             params["status"] = status
@@ -220,7 +227,7 @@ class BentrayClient:
                 raise WaitTimeout(f"job {job_id} is still {info.status} ({info.stage}) after {timeout_s} s")
             time.sleep(poll_s)
 
-    def download(self, job_id: str, out_dir: str | Path, names: Sequence[str] | None = None) -> list[Path]:
+    def download(self, job_id: str, out_dir: str | Path, names: Sequence[str] | None = None) -> builtins.list[Path]:
         """Stream result files (default: all of a succeeded job) into ``out_dir``; returns the paths.
 
         Each file is written to a temporary name and renamed when complete.

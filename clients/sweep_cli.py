@@ -156,7 +156,7 @@ def run_sweep(
             job = Job.model_validate(spec)
         except ValidationError as exc:
             raise SweepError(f"{param}={label}: invalid job:\n{format_validation_error(exc)}") from None
-        specs.append((label, value, spec, list(job.outputs)))
+        specs.append((label, value, spec, [str(o) for o in job.outputs]))
     base_dir = str(job_path.absolute().parent)
     out_dir.mkdir(parents=True, exist_ok=True)
     rows: dict[str, SweepRow] = {}
@@ -197,11 +197,11 @@ def run_sweep(
         ]
         index = {f.key: i for i, f in enumerate(futures)}
         try:
-            for fut, outcome in as_completed(futures, loop=client.loop, with_results=True):
+            for fut, outcome in as_completed(futures, loop=client.loop, with_results=True):  # type: ignore[no-untyped-call]
                 fut.release()
                 finish(index[fut.key], aligned_arrays(outcome))
         finally:
-            client.cancel([f for f in futures if not f.done()])
+            client.cancel([f for f in futures if not f.done()])  # type: ignore[no-untyped-call]
     ordered = [rows[label] for label, *_ in specs]
     write_sweep_csv(param, ordered, out_dir / "sweep.csv")
     return ordered
@@ -270,7 +270,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_sweep(sub: argparse._SubParsersAction) -> None:
+def add_sweep(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "sweep",
         help="run one job per value of a parameter; write DIR/<param>=<value>/ and sweep.csv",

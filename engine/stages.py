@@ -418,9 +418,11 @@ def baseline_spec(job: Job, profile: Profile) -> BaselineSpec:
 
 
 def _wants_paths(job: Job) -> bool:
-    if job.rays.record_paths is not None:
-        return bool(job.rays.record_paths)
-    return "rays" in job.outputs or "paths" in job.outputs
+    """Record sampled paths? See :func:`bentray.scenes.cost.records_paths` (by default only for 'paths',
+    or for 'rays' up to DEFAULT_PATH_RAYS rays)."""
+    from bentray.scenes.cost import records_paths
+
+    return records_paths(job)
 
 
 def build_plan(

@@ -7,10 +7,13 @@ centred on it. A grid one point thick (e.g. shape [201, 1, 1]) is a receiver lin
 
 from __future__ import annotations
 
-from typing import Literal
+import math
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from bentray.scenes.bounds import MAX_LENGTH_M, LengthVec3, Vec3
 
 OCTAVE_BANDS_HZ: tuple[float, ...] = (63.0, 125.0, 250.0, 500.0, 1000.0, 2000.0, 4000.0, 8000.0)
 # 50M points x 8 bands x 8 bytes x threads: a few GB at most; larger maps are split into tiles.
@@ -18,7 +21,7 @@ MAX_FIELD_POINTS = 50_000_000
 # Coherent mode keeps 5 records per arrival group and point.
 MAX_COHERENT_FIELD_POINTS = 5_000_000
 
-Vec3 = tuple[float, float, float]
+_Count = Annotated[int, Field(ge=1, le=MAX_FIELD_POINTS)]
 
 
 def band_label(frequency_hz: float) -> str:
@@ -48,8 +51,8 @@ class FieldSpec(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     origin: Vec3
-    spacing: Vec3
-    shape: tuple[int, int, int]
+    spacing: LengthVec3
+    shape: tuple[_Count, _Count, _Count]
     frequencies_hz: list[float] = Field(default_factory=lambda: list(OCTAVE_BANDS_HZ), min_length=1, max_length=64)
     mode: Literal["incoherent", "coherent", "semicoherent"] = "incoherent"
     method: Literal["beams", "voxels"] = "beams"
@@ -60,7 +63,7 @@ class FieldSpec(BaseModel):
     temperature_c: float = Field(default=15.0, ge=-50.0, le=60.0)
     pressure_kpa: float = Field(default=101.325, gt=0.0, le=200.0)
     absorption: bool = True
-    receiver_height_m: float = Field(default=4.0, ge=0.0)
+    receiver_height_m: float = Field(default=4.0, ge=0.0, le=MAX_LENGTH_M)
     sample_fraction: float = Field(default=0.5, gt=0.0, le=2.0)
 
     @field_validator("spacing")
@@ -77,7 +80,7 @@ class FieldSpec(BaseModel):
         for axis, v in zip("xyz", value, strict=True):
             if v < 1:
                 raise ValueError(f"shape along {axis} must be at least 1 (got {v})")
-        n = int(np.prod(value, dtype=np.int64))
+        n = math.prod(int(v) for v in value)  # Python ints: no int64 wrap-around
         if n > MAX_FIELD_POINTS:
             raise ValueError(
                 f"{value[0]} x {value[1]} x {value[2]} = {n:,} points; the limit is "
@@ -106,7 +109,7 @@ class FieldSpec(BaseModel):
 
     @property
     def n_points(self) -> int:
-        return int(np.prod(self.shape, dtype=np.int64))
+        return math.prod(int(v) for v in self.shape)
 
     @property
     def labels(self) -> list[str]:

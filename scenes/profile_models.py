@@ -15,6 +15,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, field_validator, model_validator
 
 from bentray.engine.profiles import Profile, build_profile
+from bentray.scenes.bounds import MAX_COORD_M, Coord, LengthVec3, Vec3
 
 __all__ = [
     "HomogeneousSpec",
@@ -33,7 +34,16 @@ __all__ = [
     "profile_from_spec",
 ]
 
-Vec3 = tuple[float, float, float]
+# Size-like parameters are bounded so that building the profile is bounded work: a few thousand modes,
+# table rows and grid nodes per axis (the job body limit bounds the total), nesting of fluctuating bases.
+MAX_SPEED_PARAM = 1.0e5  # m/s: c0, c_ref (the media check then asks for a physical range)
+MAX_MODES = 4096
+MAX_TABLE_ROWS = 100_000
+MAX_GRID_NODES_PER_AXIS = 1024
+MAX_INLINE_GRID_NODES = 1_000_000
+MAX_PROFILE_NESTING = 4  # fluctuating bases within fluctuating bases
+MAX_WAVENUMBER = 1.0e3  # rad/m (6 mm wavelength)
+_Finite = Annotated[float, Field(ge=-1e12, le=1e12)]
 
 
 class _ProfileSpecBase(BaseModel):
@@ -45,53 +55,55 @@ class _ProfileSpecBase(BaseModel):
 class _RefSpec(_ProfileSpecBase):
     """Kinds that carry their own reference speed (all but ``fluctuating``, which uses its base's)."""
 
-    c_ref: float = Field(340.0, gt=0.0, description="Reference speed of n = c_ref / c (m/s).")
+    c_ref: float = Field(340.0, gt=0.0, le=MAX_SPEED_PARAM, description="Reference speed of n = c_ref / c (m/s).")
 
 
 class HomogeneousSpec(_RefSpec):
     """Constant sound speed."""
 
     kind: Literal["homogeneous"] = "homogeneous"
-    c0: float = Field(340.0, gt=0.0, description="Sound speed (m/s).")
+    c0: float = Field(340.0, gt=0.0, le=MAX_SPEED_PARAM, description="Sound speed (m/s).")
 
 
 class LinearCSpec(_RefSpec):
     """c = c0 + alpha z."""
 
     kind: Literal["linear_c"] = "linear_c"
-    c0: float = Field(340.0, gt=0.0, description="Sound speed at z = 0 (m/s).")
-    alpha: float = Field(0.1, description="dc/dz (1/s).")
+    c0: float = Field(340.0, gt=0.0, le=MAX_SPEED_PARAM, description="Sound speed at z = 0 (m/s).")
+    alpha: _Finite = Field(0.1, description="dc/dz (1/s).")
 
 
 class LinearNSpec(_RefSpec):
     """n = n0 + alpha z, c = c_ref / n."""
 
     kind: Literal["linear_n"] = "linear_n"
-    n0: float = Field(1.0, gt=0.0, description="Refractive index at z = 0.")
-    alpha: float = Field(0.02, description="dn/dz (1/m).")
+    n0: float = Field(1.0, gt=0.0, le=1e3, description="Refractive index at z = 0.")
+    alpha: _Finite = Field(0.02, description="dn/dz (1/m).")
 
 
 class LinearN2Spec(_RefSpec):
     """n^2 = n0^2 + alpha z."""
 
     kind: Literal["linear_n2"] = "linear_n2"
-    n0: float = Field(1.0, gt=0.0, description="Refractive index at z = 0.")
-    alpha: float = Field(0.01, description="d(n^2)/dz (1/m).")
+    n0: float = Field(1.0, gt=0.0, le=1e3, description="Refractive index at z = 0.")
+    alpha: _Finite = Field(0.01, description="d(n^2)/dz (1/m).")
 
 
 class LogSpec(_RefSpec):
     """c = c0 + b ln(z/z_g + 1) (A-LD b = +1, A-LU b = -1)."""
 
     kind: Literal["log"] = "log"
-    c0: float = Field(340.0, gt=0.0, description="Sound speed at the ground (m/s).")
-    b: float = Field(1.0, description="Log-profile strength (m/s); +1 downward (A-LD), -1 upward (A-LU).")
-    z_g: float = Field(1.0, gt=0.0, description="Roughness length (m).")
+    c0: float = Field(340.0, gt=0.0, le=MAX_SPEED_PARAM, description="Sound speed at the ground (m/s).")
+    b: _Finite = Field(1.0, description="Log-profile strength (m/s); +1 downward (A-LD), -1 upward (A-LU).")
+    z_g: float = Field(1.0, gt=0.0, le=MAX_COORD_M, description="Roughness length (m).")
 
 
 class _MirageSpec(_RefSpec):
-    mu0: float = Field(1.000233, gt=0.0, description="Refractive index at z = 0 (inferior) or far above (superior).")
-    mu1: float = Field(0.4584, description="Refractive-index change scale (n^2 changes by mu1^2).")
-    beta: float = Field(2.303, description="Decay rate (1/m).")
+    mu0: float = Field(
+        1.000233, gt=0.0, le=1e3, description="Refractive index at z = 0 (inferior) or far above (superior)."
+    )
+    mu1: _Finite = Field(0.4584, description="Refractive-index change scale (n^2 changes by mu1^2).")
+    beta: _Finite = Field(2.303, description="Decay rate (1/m).")
 
 
 class MirageInferiorSpec(_MirageSpec):
@@ -111,8 +123,8 @@ class HotSpotSpec(_RefSpec):
 
     kind: Literal["hot_spot"] = "hot_spot"
     center: Vec3 = Field((0.0, 0.0, 10.0), description="Hot-spot position (m).")
-    t_s: float = Field(330.0, gt=0.0, description="Temperature at the hot spot (K).")
-    d0: float = Field(50.0, gt=0.0, description="Drop-off length (m).")
+    t_s: float = Field(330.0, gt=0.0, le=1e4, description="Temperature at the hot spot (K).")
+    d0: float = Field(50.0, gt=0.0, le=MAX_COORD_M, description="Drop-off length (m).")
 
 
 class FluctuatingSpec(_ProfileSpecBase):
@@ -120,17 +132,22 @@ class FluctuatingSpec(_ProfileSpecBase):
 
     kind: Literal["fluctuating"] = "fluctuating"
     base: ProfileSpec = Field(default_factory=lambda: LogSpec(), description="Profile the modes add to.")
-    rms: float = Field(0.5, ge=0.0, description="Spatial RMS of c_flu (m/s).")
-    n_modes: int = Field(64, ge=1, description="Number of Fourier modes.")
-    k_min: float = Field(2.0 * math.pi / 200.0, gt=0.0, description="Smallest wavenumber (rad/m).")
-    k_max: float = Field(2.0 * math.pi / 10.0, gt=0.0, description="Largest wavenumber (rad/m).")
+    rms: float = Field(0.5, ge=0.0, le=1e3, description="Spatial RMS of c_flu (m/s).")
+    n_modes: int = Field(64, ge=1, le=MAX_MODES, description="Number of Fourier modes.")
+    k_min: float = Field(2.0 * math.pi / 200.0, gt=0.0, le=MAX_WAVENUMBER, description="Smallest wavenumber (rad/m).")
+    k_max: float = Field(2.0 * math.pi / 10.0, gt=0.0, le=MAX_WAVENUMBER, description="Largest wavenumber (rad/m).")
     spectrum: Literal["gaussian", "flat", "von_karman"] = "gaussian"
-    seed: int = Field(0, description="Seed of numpy.random.default_rng.")
+    seed: int = Field(0, ge=0, le=2**63 - 1, description="Seed of numpy.random.default_rng.")
 
     @model_validator(mode="after")
     def _check_band(self) -> FluctuatingSpec:
         if not self.k_min < self.k_max:
             raise ValueError(f"k_min must be < k_max (got k_min={self.k_min}, k_max={self.k_max})")
+        depth, base = 1, self.base
+        while isinstance(base, FluctuatingSpec):
+            depth, base = depth + 1, base.base
+        if depth > MAX_PROFILE_NESTING:
+            raise ValueError(f"fluctuating profiles nest {depth} deep; at most {MAX_PROFILE_NESTING}")
         return self
 
 
@@ -144,10 +161,12 @@ class TableSpec(_RefSpec):
     """Stratified table c(z): ``z`` plus exactly one of ``c``, ``temperature_k``, ``temperature_c``."""
 
     kind: Literal["table"] = "table"
-    z: list[float] = Field(description="Heights (m), strictly increasing, at least 2 rows.")
-    c: list[float] | None = Field(None, description="Sound speed per row (m/s).")
-    temperature_k: list[float] | None = Field(None, description="Temperature per row (K).")
-    temperature_c: list[float] | None = Field(None, description="Temperature per row (deg C).")
+    z: list[Coord] = Field(max_length=MAX_TABLE_ROWS, description="Heights (m), strictly increasing, at least 2 rows.")
+    c: list[_Finite] | None = Field(None, max_length=MAX_TABLE_ROWS, description="Sound speed per row (m/s).")
+    temperature_k: list[_Finite] | None = Field(None, max_length=MAX_TABLE_ROWS, description="Temperature per row (K).")
+    temperature_c: list[_Finite] | None = Field(
+        None, max_length=MAX_TABLE_ROWS, description="Temperature per row (deg C)."
+    )
     interpolation: Literal["linear", "pchip"] = "pchip"
 
     @field_validator("z")
@@ -202,14 +221,20 @@ class GridSpec(_RefSpec):
     inline arrays ``origin`` (m), ``spacing`` (m) and ``c`` (nested lists, shape (nx, ny, nz), m/s)."""
 
     kind: Literal["grid"] = "grid"
-    path: str | None = Field(None, description="Grid file (.npz or .vti), relative to the job file.")
+    path: str | None = Field(
+        None, min_length=1, max_length=255, description="Grid file (.npz or .vti), relative to the job file."
+    )
     origin: Vec3 | None = Field(None, description="Position of node c[0][0][0] (m).")
-    spacing: Vec3 | None = Field(None, description="Node spacing along x, y, z (m).")
-    c: list[list[list[float]]] | None = Field(None, description="Sound speed at the nodes (m/s).")
+    spacing: LengthVec3 | None = Field(None, description="Node spacing along x, y, z (m).")
+    c: list[list[list[_Finite]]] | None = Field(
+        None, max_length=MAX_GRID_NODES_PER_AXIS, description="Sound speed at the nodes (m/s)."
+    )
 
     @field_validator("path")
     @classmethod
     def _path_suffix(cls, v: str | None) -> str | None:
+        if v is not None and any(ord(ch) < 32 for ch in v):
+            raise ValueError("path must not contain control characters (NUL, newline, ...)")
         if v is not None and Path(v).suffix.lower() not in (".npz", ".vti"):
             raise ValueError(f"path must end in .npz or .vti, got {v!r}")
         return v
@@ -233,6 +258,11 @@ class GridSpec(_RefSpec):
             raise ValueError("c must be a rectangular (nx, ny, nz) nested list")
         if min(nx, ny, nz) < 2:
             raise ValueError(f"c needs at least 2 points along every axis, got shape ({nx}, {ny}, {nz})")
+        if max(ny, nz) > MAX_GRID_NODES_PER_AXIS or nx * ny * nz > MAX_INLINE_GRID_NODES:
+            raise ValueError(
+                f"c has shape ({nx}, {ny}, {nz}); inline grids allow {MAX_GRID_NODES_PER_AXIS} nodes per axis and "
+                f"{MAX_INLINE_GRID_NODES:,} in all (give a .npz file for more)"
+            )
         if any(x <= 0.0 for row in v for col in row for x in col):
             raise ValueError("c must be > 0 everywhere")
         return v

@@ -20,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from bentray.engine.errors import JobInputError
 from bentray.engine.surfaces import Footprint, HeightGrid, Material, SceneSurfaces, TriangleSurface
+from bentray.scenes.bounds import MAX_LENGTH_M, Coord, Vec2, json_coordinate_problem
 from bentray.scenes.geometry import box_pairs, terrain_height_at, terrain_xy_bounds
 from bentray.scenes.gis_frame import shift_footprint, shift_terrain, shift_zone
 from bentray.scenes.gis_geometry import (
@@ -96,7 +97,7 @@ class TerrainSpec(_Model):
 
     file: str = Field(min_length=1)
     format: Literal["asc", "npy", "npz", "obj", "stl", "ply"] | None = None
-    origin: tuple[float, float] | None = None
+    origin: Vec2 | None = None
     spacing: tuple[float, float] | None = None
     material: str | None = None
 
@@ -109,6 +110,8 @@ class TerrainSpec(_Model):
     def _positive(cls, value: tuple[float, float] | None) -> tuple[float, float] | None:
         if value is not None and min(value) <= 0:
             raise ValueError(f"spacing must be > 0 along x and y, got {list(value)}")
+        if value is not None and max(value) > MAX_LENGTH_M:
+            raise ValueError(f"spacing must be at most {MAX_LENGTH_M:g} m, got {list(value)}")
         return value
 
     @model_validator(mode="after")
@@ -131,11 +134,11 @@ class FootprintSpec(_Model):
     with optional ``holes`` (courtyards, same form), ``height_m`` above ``base_z`` (default: the lowest
     terrain under the polygon) or ``levels`` storeys of ``scene.buildings.storey_height_m``."""
 
-    polygon: list[tuple[float, float]] = Field(min_length=3, max_length=MAX_POLYGON_VERTICES)
-    holes: list[list[tuple[float, float]]] = Field(default_factory=list, max_length=1000)
+    polygon: list[Vec2] = Field(min_length=3, max_length=MAX_POLYGON_VERTICES)
+    holes: list[list[Vec2]] = Field(default_factory=list, max_length=1000)
     height_m: float | None = Field(default=None, gt=0, lt=MAX_BUILDING_HEIGHT_M)
     levels: float | None = Field(default=None, gt=0, le=300)
-    base_z: float | None = None
+    base_z: Coord | None = None
     material: str | None = None
     name: str | None = Field(default=None, max_length=100)
 
@@ -341,6 +344,9 @@ def surfaces_from_specs(
     if buildings is not None:
         if buildings.file is not None:
             field = f"{prefix}.buildings.file"
+            problem = json_coordinate_problem(_resolve(base_dir, buildings.file))
+            if problem is not None:  # before any geometry: no extent can overflow
+                raise SceneFileError(f"{field}: {problem}")
             try:
                 read = read_footprints_geojson(_resolve(base_dir, buildings.file), index, buildings.storey_height_m)
             except SceneFileError as exc:
@@ -367,7 +373,14 @@ def surfaces_from_specs(
                 raise SceneFileError(f"{field}: {exc}") from None
             if offset:
                 vertices = vertices - np.array([offset[0], offset[1], 0.0])
-            outside = ~np.all((vertices > dmin) & (vertices < dmax), axis=1)
+            # strictly inside, except that a base may stand on the flat ground (z = domain min z)
+            outside = ~(
+                np.all((vertices > dmin) & (vertices < dmax), axis=1)
+                | (
+                    np.all((vertices[:, :2] > dmin[:2]) & (vertices[:, :2] < dmax[:2]), axis=1)
+                    & (vertices[:, 2] == dmin[2])
+                )
+            )
             if np.any(outside):
                 errors.append(
                     f"{field}: {int(outside.sum())} vertices lie outside the domain (first "

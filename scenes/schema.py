@@ -14,7 +14,7 @@ from __future__ import annotations
 import functools
 import json
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
 from pydantic import (
@@ -29,6 +29,7 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from bentray.engine.errors import BentrayError
+from bentray.scenes.bounds import MAX_LENGTH_M, MIN_LENGTH_M, Vec2, Vec3
 from bentray.scenes.crs import crs_errors
 from bentray.scenes.field_models import MAX_COHERENT_FIELD_POINTS, FieldSpec
 from bentray.scenes.ground_zones import GroundZonesSpec
@@ -54,6 +55,7 @@ __all__ = [
     "Top",
     "format_validation_error",
     "load_job",
+    "parse_job_json",
     "parse_job_text",
 ]
 
@@ -70,6 +72,12 @@ MAX_TOTAL_RAYS = 10_000_000  # sources x elevations x azimuths; keeps one job's 
 MAX_SOURCES = 10_000
 MAX_TIME_S = 3600.0
 MAX_REFLECTIONS = 100_000
+MAX_STEPS = 1_000_000_000  # cell crossings per ray (a ray that needs more is stuck)
+MAX_PATH_SAMPLES = 10_000  # samples per recorded ray path (each costs ~100 B per ray in memory)
+MAX_ANGLE_DEG = 3600.0  # azimuths are periodic; ten turns is more than any fan needs
+MAX_POWER_DB = 250.0  # sound power level re 1 pW (a rocket launch is ~200 dB)
+MAX_JSON_DEPTH = 64  # nesting of the job JSON (the deepest valid job is ~10 levels)
+MAX_JSON_INT_DIGITS = 100  # digits of one JSON integer (no valid field needs more than 20)
 BUILTIN_SCENES: tuple[str, ...] = tuple(_REGISTRY)
 _NAME_RE = r"^[A-Za-z0-9._-]{1,100}$"
 
@@ -99,7 +107,6 @@ class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
-Vec3 = tuple[float, float, float]
 _AXES = ("x", "y", "z")
 
 
@@ -146,7 +153,7 @@ class Ground(_Model):
     """The domain's bottom face. ``flow_resistivity`` in Pa s/m^2 (> 0); None means acoustically rigid."""
 
     kind: Literal["flat"] = "flat"
-    flow_resistivity: float | None = Field(default=None, gt=0)
+    flow_resistivity: float | None = Field(default=None, gt=0, le=1e12)
 
 
 class Top(_Model):
@@ -213,6 +220,17 @@ class Scene(_Model):
             (loc, reason, None)
             for loc, reason in material_reference_errors(self.terrain, self.buildings, self.materials)
         )
+        files: list[tuple[tuple[str | int, ...], str | None]] = []
+        if self.terrain is not None:
+            files.append((("terrain", "file"), self.terrain.file))
+        if self.buildings is not None:
+            files.append((("buildings", "file"), self.buildings.file))
+            files += [(("buildings", "obstacles", i, "file"), ob.file) for i, ob in enumerate(self.buildings.obstacles)]
+        for loc, name in files:
+            if name is not None and (len(name) > 255 or any(ord(ch) < 32 for ch in name)):
+                errors.append(
+                    (loc, "a file name of at most 255 characters without control characters (NUL, ...)", name)
+                )
         if errors:
             _fail(errors, "Scene")
         return self
@@ -253,10 +271,12 @@ class Source(_Model):
     ``position`` [x, y, z] (absolute z, metres) or [x, y] with ``height_above_ground_m`` (exactly one of the
     two; the z is resolved against the terrain, or the flat ground, when the job is prepared)."""
 
-    position: Vec3 | tuple[float, float]
+    position: Vec3 | Vec2
     height_above_ground_m: float | None = Field(default=None, gt=0, lt=10_000)
-    power_db: dict[str, float] | None = None
-    name: str | None = None
+    power_db: dict[str, Annotated[float, Field(ge=-MAX_POWER_DB, le=MAX_POWER_DB)]] | None = Field(
+        default=None, max_length=64
+    )
+    name: str | None = Field(default=None, max_length=100)
 
     @model_validator(mode="after")
     def _one_height(self) -> Source:
@@ -270,9 +290,9 @@ class Source(_Model):
 class AngleRange(_Model):
     """``count`` evenly spaced angles from ``min`` to ``max`` inclusive, in degrees."""
 
-    min: float
-    max: float
-    count: int = Field(ge=1)
+    min: float = Field(ge=-MAX_ANGLE_DEG, le=MAX_ANGLE_DEG)
+    max: float = Field(ge=-MAX_ANGLE_DEG, le=MAX_ANGLE_DEG)
+    count: int = Field(ge=1, le=10**12)  # the product is checked against MAX_TOTAL_RAYS
 
     @model_validator(mode="after")
     def _check_range(self) -> AngleRange:
@@ -324,7 +344,9 @@ class Rays(_Model):
     azimuth_deg: AngleRange = Field(default_factory=_single_azimuth)
     max_time_s: float = Field(gt=0, le=MAX_TIME_S)
     max_reflections: int = Field(ge=0, le=MAX_REFLECTIONS)
-    max_steps: int = Field(default=10_000_000, ge=1)
+    max_steps: int = Field(default=10_000_000, ge=1, le=MAX_STEPS)
+    # None: record sampled paths when 'paths' is an output, or for 'rays' when the job has at most
+    # DEFAULT_PATH_RAYS rays (engine.run._wants_paths); true / false: always / never
     record_paths: bool | None = None
 
     @property
@@ -348,17 +370,18 @@ class Solver(_Model):
     curve: Literal["parabolic", "circular", "n_linear", "euler", "euler_adaptive", "rk4", "dopri5"] = "parabolic"
     representation: Literal["auto", "uniform", "slabs", "tets"] = "auto"
     sizing: Literal["curvature", "gradient"] = "curvature"
-    epsilon: float | None = Field(default=None, gt=0)
-    delta: float | None = Field(default=None, gt=0)
-    d_min_m: float | None = Field(default=None, gt=0)
-    d_max_m: float | None = Field(default=None, gt=0)
+    # sizing tolerances: below 1e-12 the layers are rounding noise; above 1 (epsilon: 10) no refinement
+    epsilon: float | None = Field(default=None, ge=1e-12, le=10.0)
+    delta: float | None = Field(default=None, ge=1e-12, le=1.0)
+    d_min_m: float | None = Field(default=None, ge=MIN_LENGTH_M, le=MAX_LENGTH_M)
+    d_max_m: float | None = Field(default=None, ge=MIN_LENGTH_M, le=MAX_LENGTH_M)
     gradient: Literal["lsq", "green_gauss"] = "lsq"
-    path_samples: int = Field(default=400, ge=2)
+    path_samples: int = Field(default=400, ge=2, le=MAX_PATH_SAMPLES)
     # numerical baselines (engine/baselines): fixed step / first step in metres of arc, local error
     # tolerance of the adaptive ones, and the media they integrate (the mesh's linear model, or the
     # closed-form profile)
-    step_m: float | None = Field(default=None, gt=0, le=1e5)
-    tolerance: float | None = Field(default=None, gt=0, lt=1)
+    step_m: float | None = Field(default=None, ge=MIN_LENGTH_M, le=1e5)
+    tolerance: float | None = Field(default=None, ge=1e-14, lt=1)
     media: Literal["mesh", "exact"] | None = None
     batch_rays: int = Field(default=DEFAULT_BATCH_RAYS, ge=1, le=MAX_TOTAL_RAYS)
 
@@ -450,7 +473,7 @@ class Job(_Model):
     sources: list[Source] = Field(min_length=1, max_length=MAX_SOURCES)
     rays: Rays
     solver: Solver = Field(default_factory=Solver)
-    outputs: list[OutputName] = Field(default_factory=lambda: ["rays", "report"], min_length=1)
+    outputs: list[OutputName] = Field(default_factory=lambda: ["rays", "report"], min_length=1, max_length=16)
     field: FieldSpec | None = None
     receivers: list[Receiver] = Field(default_factory=list, max_length=MAX_RECEIVERS)
 
@@ -678,19 +701,65 @@ def _reject_constant(name: str) -> Any:
     raise JobFileError(f"{name} is not valid JSON (non-finite numbers are not allowed)")
 
 
-def parse_job_text(text: str, origin: str = "<job>") -> Job:
-    """Parse JSON text into a :class:`Job`.
+def _bounded_int(text: str) -> int:
+    digits = len(text.lstrip("-"))
+    if digits > MAX_JSON_INT_DIGITS:
+        raise JobFileError(f"an integer of {digits:,} digits; no job field takes more than {MAX_JSON_INT_DIGITS}")
+    return int(text)
 
-    Raises :class:`JobFileError` for invalid JSON (message with line and column) and
-    ``pydantic.ValidationError`` for a schema violation (render it with :func:`format_validation_error`).
+
+def _json_depth_problem(data: Any) -> str | None:
+    """Why ``data`` nests deeper than :data:`MAX_JSON_DEPTH` (iterative: no recursion), or None."""
+    stack: list[tuple[Any, int]] = [(data, 1)]
+    while stack:
+        value, depth = stack.pop()
+        if isinstance(value, dict | list):
+            if depth > MAX_JSON_DEPTH:
+                return f"the JSON nests deeper than {MAX_JSON_DEPTH} levels"
+            items = value.values() if isinstance(value, dict) else value
+            stack.extend((item, depth + 1) for item in items)
+    return None
+
+
+def parse_job_json(text: str, origin: str = "<job>") -> Any:
+    """The one JSON reader of jobs: text -> plain data, or :class:`JobFileError` with the reason.
+
+    Refuses what :func:`json.loads` would accept but no job needs and what makes later stages fail
+    or spin: duplicate keys, NaN/Infinity, integers of more than :data:`MAX_JSON_INT_DIGITS` digits,
+    nesting deeper than :data:`MAX_JSON_DEPTH` (RecursionError included), NUL characters.
     """
+    if not isinstance(text, str):
+        raise JobFileError(f"{origin}: the job must be JSON text")
     try:
-        data = json.loads(text, object_pairs_hook=_no_duplicate_keys, parse_constant=_reject_constant)
+        data = json.loads(
+            text, object_pairs_hook=_no_duplicate_keys, parse_constant=_reject_constant, parse_int=_bounded_int
+        )
     except json.JSONDecodeError as exc:
         raise JobFileError(f"{origin}: invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}") from None
     except JobFileError as exc:
         raise JobFileError(f"{origin}: {exc}") from None
-    return Job.model_validate(data)
+    except RecursionError:
+        raise JobFileError(f"{origin}: the JSON nests deeper than {MAX_JSON_DEPTH} levels") from None
+    except (ValueError, OverflowError, MemoryError) as exc:  # e.g. int digit limits of the json module
+        raise JobFileError(f"{origin}: invalid JSON: {' '.join(str(exc).split())[:200]}") from None
+    problem = _json_depth_problem(data)
+    if problem is not None:
+        raise JobFileError(f"{origin}: {problem}")
+    return data
+
+
+def parse_job_text(text: str, origin: str = "<job>") -> Job:
+    """Parse JSON text into a :class:`Job`.
+
+    Raises :class:`JobFileError` for invalid JSON (message with line and column, see
+    :func:`parse_job_json`) and ``pydantic.ValidationError`` for a schema violation (render it with
+    :func:`format_validation_error`).
+    """
+    data = parse_job_json(text, origin)
+    try:
+        return Job.model_validate(data)
+    except RecursionError:  # pydantic's own guard normally answers first
+        raise JobFileError(f"{origin}: the job nests too deeply") from None
 
 
 def load_job(path: str | Path) -> Job:

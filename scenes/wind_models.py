@@ -16,6 +16,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, model_validator
 
 from bentray.engine.wind import DEFAULT_Z_REF_M, MAX_U_STAR, wind_spec
+from bentray.scenes.bounds import MAX_COORD_M, Coord
 
 __all__ = ["LogWindSpec", "RidgeWindSpec", "WindSpec", "WIND_SPEC_ADAPTER", "wind_from_spec"]
 
@@ -24,9 +25,13 @@ class _WindSpecBase(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
     u_star: float = Field(gt=0.0, le=MAX_U_STAR, description="Friction velocity u* (m/s); u = (u*/0.41) ln(z/z_g).")
-    z_g: float = Field(gt=0.0, description="Roughness length z_g (m); no wind at or below z_g above the surface.")
-    direction_deg: float = Field(description="Direction the wind blows toward (degrees, counter-clockwise from +x).")
-    ground_z_m: float = Field(0.0, description="Height of the flat ground (ridge: its foot) the wind starts from (m).")
+    z_g: float = Field(
+        gt=0.0, le=MAX_COORD_M, description="Roughness length z_g (m); no wind at or below z_g above the surface."
+    )
+    direction_deg: float = Field(
+        ge=-3600.0, le=3600.0, description="Direction the wind blows toward (degrees, counter-clockwise from +x)."
+    )
+    ground_z_m: Coord = Field(0.0, description="Height of the flat ground (ridge: its foot) the wind starts from (m).")
 
 
 class LogWindSpec(_WindSpecBase):
@@ -41,10 +46,14 @@ class RidgeWindSpec(_WindSpecBase):
     the ridge axis runs along y. Below z_g above the surface the speed falls linearly to 0."""
 
     kind: Literal["ridge"] = "ridge"
-    height_m: float = Field(ge=0.0, description="Ridge height H (m).")
-    half_width_m: float = Field(gt=0.0, description="Ridge half-width L (m): the height is H/2 at |x - crest_x| = L.")
-    crest_x_m: float = Field(0.0, description="x of the crest line (m).")
-    z_ref_m: float = Field(DEFAULT_Z_REF_M, gt=0.0, description="Reference height of u_ref above the surface (m).")
+    height_m: float = Field(ge=0.0, le=MAX_COORD_M, description="Ridge height H (m).")
+    half_width_m: float = Field(
+        gt=0.0, le=MAX_COORD_M, description="Ridge half-width L (m): the height is H/2 at |x - crest_x| = L."
+    )
+    crest_x_m: Coord = Field(0.0, description="x of the crest line (m).")
+    z_ref_m: float = Field(
+        DEFAULT_Z_REF_M, gt=0.0, le=MAX_COORD_M, description="Reference height of u_ref above the surface (m)."
+    )
 
     @model_validator(mode="after")
     def _z_ref_above_z_g(self) -> RidgeWindSpec:

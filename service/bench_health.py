@@ -20,6 +20,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 import httpx
 import numpy as np
@@ -27,7 +28,7 @@ import numpy as np
 _EXAMPLE = Path(__file__).resolve().parents[1] / "scenes" / "examples" / "a-ld-fan.json"
 
 
-def _job(rays: int, name: str) -> dict:
+def _job(rays: int, name: str) -> dict[str, Any]:
     job = json.loads(_EXAMPLE.read_text()) if _EXAMPLE.is_file() else None
     if job is None:  # installed without the examples folder: the same job inline
         job = {

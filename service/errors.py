@@ -12,17 +12,21 @@ text as :func:`bentray.scenes.schema.format_validation_error` (and ``bentray run
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from pydantic import ValidationError
+from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from bentray.scenes.schema import JobFileError, format_validation_error
 
 __all__ = [
+    "ERROR_CODES",
     "AuthError",
+    "BadRequestError",
     "InvalidInputError",
     "JobStateError",
     "LengthRequiredError",
@@ -37,8 +41,12 @@ __all__ = [
 ]
 
 
+log = logging.getLogger("bentray.service")
+
+
 class ServiceError(Exception):
-    """Base: ``status`` is the HTTP code, ``code`` a stable machine name, ``detail`` the text."""
+    """Base: ``status`` is the HTTP code, ``code`` a stable machine name, ``detail`` the text,
+    ``headers`` extra response headers."""
 
     status = 500
     code = "internal"
@@ -47,6 +55,7 @@ class ServiceError(Exception):
         super().__init__(detail)
         self.detail = detail
         self.errors = errors or []
+        self.headers: dict[str, str] = {}
 
     def body(self) -> dict[str, Any]:
         body: dict[str, Any] = {"error": self.code, "detail": self.detail}
@@ -69,9 +78,20 @@ class InvalidInputError(ServiceError):
         return err
 
 
+class BadRequestError(ServiceError):
+    """A request the server cannot even parse: a malformed multipart body, a bad header."""
+
+    status = 400
+    code = "bad_request"
+
+
 class AuthError(ServiceError):
     status = 401
     code = "unauthorized"
+
+    def __init__(self, detail: str, errors: list[dict[str, str]] | None = None) -> None:
+        super().__init__(detail, errors)
+        self.headers = {"WWW-Authenticate": "Bearer"}
 
 
 class NotFoundError(ServiceError):
@@ -104,8 +124,35 @@ class UploadTooLargeError(ServiceError):
 
 
 class QueueFullError(ServiceError):
+    """Too many queued jobs; ``Retry-After`` says when to try again (seconds)."""
+
     status = 429
     code = "queue_full"
+
+    def __init__(self, detail: str, retry_after_s: int = 30) -> None:
+        super().__init__(detail)
+        self.headers = {"Retry-After": str(int(retry_after_s))}
+
+
+class MethodNotAllowedError(ServiceError):
+    status = 405
+    code = "method_not_allowed"
+
+
+# HTTP status -> the typed error answering it (the one mapping; routes raise these, never HTTPException).
+ERROR_CODES: dict[int, type[ServiceError]] = {
+    400: BadRequestError,
+    401: AuthError,
+    404: NotFoundError,
+    405: MethodNotAllowedError,
+    409: JobStateError,
+    411: LengthRequiredError,
+    413: UploadTooLargeError,
+    415: UnsupportedMediaError,
+    422: InvalidInputError,
+    429: QueueFullError,
+    500: ServiceError,
+}
 
 
 def lines_to_errors(lines: list[str]) -> list[dict[str, str]]:
@@ -134,17 +181,42 @@ def _request_error_lines(exc: RequestValidationError) -> list[str]:
 
 
 def install_error_handlers(app: FastAPI) -> None:
-    """Register the one mapping from error types to responses on ``app``."""
+    """Register the one mapping from error types to responses on ``app``: every error answer of the
+    service, starlette's own (unknown route, multipart parse errors) and unexpected ones (500) included,
+    is an :class:`bentray.service.models.ErrorBody`."""
+
+    def respond(err: ServiceError) -> JSONResponse:
+        return JSONResponse(err.body(), status_code=err.status, headers=err.headers or None)
 
     async def service_error(request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, ServiceError)
-        headers = {"WWW-Authenticate": "Bearer"} if isinstance(exc, AuthError) else None
-        return JSONResponse(exc.body(), status_code=exc.status, headers=headers)
+        return respond(exc)
 
     async def request_validation(request: Request, exc: Exception) -> JSONResponse:
         assert isinstance(exc, RequestValidationError)
-        err = InvalidInputError.from_lines(_request_error_lines(exc), code="invalid_request")
-        return JSONResponse(err.body(), status_code=err.status)
+        return respond(InvalidInputError.from_lines(_request_error_lines(exc), code="invalid_request"))
+
+    async def starlette_error(request: Request, exc: Exception) -> JSONResponse:
+        assert isinstance(exc, StarletteHTTPException)
+        kind = ERROR_CODES.get(exc.status_code)
+        detail = str(exc.detail) if exc.detail else "error"
+        if kind is None or kind is ServiceError:
+            err = ServiceError(detail)
+            err.status = exc.status_code
+            err.code = "error"
+        elif kind is InvalidInputError:
+            err = InvalidInputError.from_lines([f"request: {detail}"], code="invalid_request")
+        elif kind is QueueFullError:
+            err = QueueFullError(detail)
+        else:
+            err = kind(f"request: {detail}" if exc.status_code == 400 else detail)
+        return respond(err)
+
+    async def unexpected(request: Request, exc: Exception) -> JSONResponse:
+        log.exception("unexpected error answering %s %s", request.method, request.url.path)
+        return respond(ServiceError("internal server error"))
 
     app.add_exception_handler(ServiceError, service_error)
     app.add_exception_handler(RequestValidationError, request_validation)
+    app.add_exception_handler(StarletteHTTPException, starlette_error)
+    app.add_exception_handler(Exception, unexpected)

@@ -14,6 +14,11 @@ Environment variables (all optional):
 | ``BENTRAY_MAX_JOB_SECONDS`` | 3600 | run time of one attempt; longer -> failed |
 | ``BENTRAY_RETENTION_DAYS`` | 7 | finished jobs and assets older than this are deleted |
 | ``BENTRAY_WORKERS`` | 1 | concurrent job processes started by ``bentray serve`` (0: API only) |
+| ``BENTRAY_MAX_JOB_MEMORY_BYTES`` | min(8 GiB, half this machine) | estimated memory of one job (paths, field, rays) |
+| ``BENTRAY_MAX_FIELD_DEPOSITS`` | 2e10 | estimated field samples of one job (scenes/cost.py) |
+| ``BENTRAY_MAX_RAY_STEPS`` | 5e10 | estimated cell crossings of one job (scenes/cost.py) |
+| ``BENTRAY_VALIDATION_SECONDS`` | 10 | time limit of submit-time validation (its own process); longer -> 422 |
+| ``BENTRAY_RETRY_AFTER_SECONDS`` | 30 | ``Retry-After`` of a 429 (queue full) |
 | ``BENTRAY_DASK_SCHEDULER`` | none | Dask scheduler (``tcp://host:8786``) for the ray batches (none: in-process) |
 
 No key configured means a single local user: the server then refuses to bind anything but a
@@ -30,10 +35,17 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
+from bentray.scenes.cost import machine_memory_bytes
+
 __all__ = ["LOCAL_OWNER", "Settings", "SettingsError", "check_bind_host", "owner_of_key"]
 
 LOCAL_OWNER = "local"  # owner id of every job when no API key is configured
 _MIN_KEY_CHARS = 16  # a shorter bearer key is guessable; refuse it at start-up
+
+
+def _default_job_memory() -> int:
+    machine = machine_memory_bytes()
+    return min(8 * 2**30, machine // 2) if machine > 0 else 8 * 2**30
 
 
 class SettingsError(ValueError):
@@ -67,6 +79,14 @@ class Settings(BaseModel):
     worker_nice: int = Field(default=10, ge=0, le=19)
     # Supervisor loop period (s): how fast cancel, progress and finished children are noticed.
     poll_seconds: float = Field(default=0.2, gt=0, le=5)
+    # The cost model's budgets (bentray.scenes.cost): a job over one is refused with a 422 at submit.
+    max_job_memory_bytes: int = Field(default_factory=_default_job_memory, ge=2**20)
+    max_field_deposits: float = Field(default=2e10, gt=0)
+    max_ray_steps: float = Field(default=5e10, gt=0)
+    # Submit-time validation runs in helper processes with this time limit (a longer one -> 422).
+    validation_seconds: float = Field(default=10.0, gt=0, le=600)
+    validation_processes: int = Field(default=2, ge=1, le=64)
+    retry_after_seconds: int = Field(default=30, ge=1, le=86400)
 
     @field_validator("api_keys")
     @classmethod
@@ -82,6 +102,11 @@ class Settings(BaseModel):
     def owners(self) -> dict[str, str]:
         """owner id -> key for every configured key (empty: single local user)."""
         return {owner_of_key(k): k for k in self.api_keys}
+
+    @property
+    def threads_per_job(self) -> int:
+        """numba threads of one job process (the supervisor's split of this machine's cores)."""
+        return max(1, (os.cpu_count() or 1) // max(self.workers, 1))
 
     @property
     def db_path(self) -> Path:
@@ -114,6 +139,11 @@ class Settings(BaseModel):
             "BENTRAY_MAX_JOB_SECONDS": "max_job_seconds",
             "BENTRAY_RETENTION_DAYS": "retention_days",
             "BENTRAY_WORKERS": "workers",
+            "BENTRAY_MAX_JOB_MEMORY_BYTES": "max_job_memory_bytes",
+            "BENTRAY_MAX_FIELD_DEPOSITS": "max_field_deposits",
+            "BENTRAY_MAX_RAY_STEPS": "max_ray_steps",
+            "BENTRAY_VALIDATION_SECONDS": "validation_seconds",
+            "BENTRAY_RETRY_AFTER_SECONDS": "retry_after_seconds",
             "BENTRAY_DASK_SCHEDULER": "dask_scheduler",
         }
         for var, field in names.items():

@@ -18,6 +18,7 @@ payloads are the job JSON text (never pickle). Times are Unix seconds (float, UT
 
 from __future__ import annotations
 
+import builtins
 import enum
 import json
 import sqlite3
@@ -207,7 +208,9 @@ class JobStore:
             row = con.execute("SELECT * FROM jobs WHERE id = ? AND owner = ?", (job_id, owner)).fetchone()
         return JobRecord.from_row(row) if row is not None else None
 
-    def list(self, owner: str | None = None, status: JobStatus | None = None, limit: int = 1000) -> list[JobRecord]:
+    def list(
+        self, owner: str | None = None, status: JobStatus | None = None, limit: int = 1000
+    ) -> builtins.list[JobRecord]:
         """Jobs, newest first, optionally of one owner and/or one status."""
         where, args = [], []
         if owner is not None:
@@ -264,7 +267,7 @@ class JobStore:
         attempt: int | None,
         status: JobStatus,
         error: str | None = None,
-        files: list[str] | None = None,
+        files: builtins.list[str] | None = None,
         timings: dict[str, float] | None = None,
     ) -> bool:
         """Move a running job (of this attempt, if given) to a finished status; False if it was not running."""
@@ -274,7 +277,7 @@ class JobStore:
             "UPDATE jobs SET status = ?, error = ?, finished_at = ?, updated_at = ?, worker_pid = NULL, "
             "stage = ?, progress = CASE WHEN ? = 'succeeded' THEN 1.0 ELSE progress END"
         )
-        args: list[Any] = [status.value, error, now, now, status.value, status.value]
+        args: builtins.list[Any] = [status.value, error, now, now, status.value, status.value]
         if files is not None:
             sql += ", files = ?"
             args.append(json.dumps(files))
@@ -348,7 +351,7 @@ class JobStore:
         with self._tx() as con:
             return con.execute("DELETE FROM jobs WHERE id = ?", (job_id,)).rowcount == 1
 
-    def expired(self, before: float) -> list[JobRecord]:
+    def expired(self, before: float) -> builtins.list[JobRecord]:
         """Finished jobs whose ``finished_at`` is older than ``before``."""
         rows = (
             self._connection()
@@ -376,10 +379,10 @@ class JobStore:
         with self._tx() as con:
             con.execute("DELETE FROM supervisors WHERE id = ?", (supervisor,))
 
-    def supervisors(self) -> list[dict[str, Any]]:
+    def supervisors(self) -> builtins.list[dict[str, Any]]:
         return [dict(r) for r in self._connection().execute("SELECT * FROM supervisors").fetchall()]
 
-    def running_of_other_supervisors(self, supervisor: str) -> list[JobRecord]:
+    def running_of_other_supervisors(self, supervisor: str) -> builtins.list[JobRecord]:
         rows = (
             self._connection()
             .execute(
@@ -403,7 +406,7 @@ class JobStore:
         row = self._connection().execute("SELECT * FROM assets WHERE owner = ? AND name = ?", (owner, name)).fetchone()
         return AssetRecord(**dict(row)) if row is not None else None
 
-    def list_assets(self, owner: str) -> list[AssetRecord]:
+    def list_assets(self, owner: str) -> builtins.list[AssetRecord]:
         rows = self._connection().execute("SELECT * FROM assets WHERE owner = ? ORDER BY name", (owner,)).fetchall()
         return [AssetRecord(**dict(r)) for r in rows]
 
@@ -411,6 +414,6 @@ class JobStore:
         with self._tx() as con:
             return con.execute("DELETE FROM assets WHERE owner = ? AND name = ?", (owner, name)).rowcount == 1
 
-    def expired_assets(self, before: float) -> list[AssetRecord]:
+    def expired_assets(self, before: float) -> builtins.list[AssetRecord]:
         rows = self._connection().execute("SELECT * FROM assets WHERE created_at < ?", (before,)).fetchall()
         return [AssetRecord(**dict(r)) for r in rows]

@@ -25,6 +25,7 @@ import contextlib
 import logging
 import multiprocessing
 import os
+import shutil
 import signal
 import socket
 import sys
@@ -77,6 +78,23 @@ def _die_with_parent(parent_pid: int) -> None:
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
+class Terminated(BaseException):
+    """SIGTERM in a job process (not an Exception: the attempt is not recorded as failed)."""
+
+
+def _raise_terminated(signum: int, frame: object) -> None:
+    raise Terminated(f"signal {signum}")
+
+
+def remove_staging(job_dir: Path) -> int:
+    """Remove the writers' staging folders (``.results.*.tmp``) in a job folder; how many were removed."""
+    count = 0
+    for tmp in job_dir.glob(".results.*.tmp"):
+        shutil.rmtree(tmp, ignore_errors=True)
+        count += 1
+    return count
+
+
 def _error_text(exc: BaseException) -> str:
     message = " ".join(str(exc).split()) or type(exc).__name__
     return f"{type(exc).__name__}: {message}"[:_ERROR_TEXT_CHARS]
@@ -107,6 +125,8 @@ def run_attempt(
     anything else too, with the last traceback line. Writes are guarded by ``attempt``.
     """
     _die_with_parent(parent_pid)
+    # SIGTERM (cancel, server stop) unwinds like an exception, so staging folders are removed on the way out
+    signal.signal(signal.SIGTERM, _raise_terminated)
     if nice:
         with contextlib.suppress(OSError):
             os.nice(nice)
@@ -114,12 +134,13 @@ def run_attempt(
     record = store.get(job_id)
     if record is None or record.status is not JobStatus.RUNNING or record.attempts != attempt:
         return
-    last = [0.0, ""]
+    last_time = [0.0]
+    last_stage = [""]
 
     def progress(stage: str, fraction: float) -> None:
         now = time.monotonic()
-        if stage != last[1] or now - last[0] >= PROGRESS_PERIOD_S:
-            last[0], last[1] = now, stage
+        if stage != last_stage[0] or now - last_time[0] >= PROGRESS_PERIOD_S:
+            last_time[0], last_stage[0] = now, stage
             store.set_progress(job_id, attempt, stage, 0.98 * fraction)  # the last 2 %: writing files
 
     try:
@@ -132,13 +153,15 @@ def run_attempt(
         from bentray.engine.writers import write_outcome
         from bentray.scenes.schema import parse_job_text
 
-        numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+        available = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
+        numba.set_num_threads(max(1, min(threads, available)))
         job = parse_job_text(record.job_json, origin=f"job {job_id}")
         kwargs: dict[str, Any] = {"executor": make_executor(dask_scheduler)}
         if "progress" in inspect.signature(run_job).parameters:
             kwargs["progress"] = progress
         outcome = run_job(job, Path(inputs), **kwargs)
         store.set_progress(job_id, attempt, "writing", 0.98)
+        remove_staging(Path(results).parent)  # an earlier attempt killed while writing
         written = write_outcome(outcome, list(job.outputs), Path(results))
         store.finish(
             job_id,
@@ -151,6 +174,7 @@ def run_attempt(
         log.debug("job %s failed:\n%s", job_id, traceback.format_exc())
         store.finish(job_id, attempt, JobStatus.FAILED, error=_error_text(exc))
     finally:
+        remove_staging(Path(results).parent)
         store.close()
 
 
@@ -197,8 +221,7 @@ class Supervisor:
         self._active: dict[str, _Active] = {}
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        cpus = os.cpu_count() or 1
-        self._threads_per_job = max(1, cpus // max(settings.workers, 1))
+        self._threads_per_job = settings.threads_per_job
         self._next_heartbeat = 0.0
         self._next_recovery = 0.0
         self._next_cleanup = 0.0
@@ -208,6 +231,7 @@ class Supervisor:
         """Register, recover orphaned jobs and run the loop in a daemon thread."""
         self.store.register_supervisor(self.id, self.host, os.getpid())
         self.recover_orphans()
+        self.remove_stale_staging()
         self._thread = threading.Thread(target=self._run_thread, name="bentray-supervisor", daemon=True)
         self._thread.start()
 
@@ -215,6 +239,7 @@ class Supervisor:
         """Run the loop in this thread until SIGTERM/SIGINT (standalone worker)."""
         self.store.register_supervisor(self.id, self.host, os.getpid())
         self.recover_orphans()
+        self.remove_stale_staging()
         for sig in (signal.SIGTERM, signal.SIGINT):
             signal.signal(sig, lambda *_: self._stop.set())
         try:
@@ -339,6 +364,7 @@ class Supervisor:
                 new = self.store.requeue_or_fail(
                     job_id, attempt, _exit_reason(active.process.exitcode), self.settings.max_attempts
                 )
+                remove_staging(self.layout.job_dir(job_id))  # no process of this job runs now
                 log.warning(
                     "job %s attempt %d: process died (exit %s) -> %s", job_id, attempt, active.process.exitcode, new
                 )
@@ -349,7 +375,7 @@ class Supervisor:
             return False
         if sup["host"] == self.host and (sup["pid"] == os.getpid() or not _pid_alive(sup["pid"])):
             return True
-        return now - sup["heartbeat"] > STALE_SUPERVISOR_S
+        return bool(now - sup["heartbeat"] > STALE_SUPERVISOR_S)
 
     def recover_orphans(self) -> None:
         """Queue again (once) or fail the running jobs of supervisors that are gone."""
@@ -367,6 +393,17 @@ class Supervisor:
                 log.warning("job %s: orphaned attempt %d recovered -> %s", record.id, record.attempts, new)
         for sid in gone:
             self.store.unregister_supervisor(sid)
+
+    def remove_stale_staging(self) -> int:
+        """Remove result staging folders of jobs that are not running (left by a kill during the write)."""
+        count = 0
+        for job_dir in (self.settings.data_dir / "jobs").glob("*"):
+            if not any(job_dir.glob(".results.*.tmp")):
+                continue
+            record = self.store.get(job_dir.name)
+            if record is None or record.status is not JobStatus.RUNNING:
+                count += remove_staging(job_dir)
+        return count
 
     def cleanup(self) -> None:
         """Delete finished jobs (rows and files) and assets older than the retention time."""

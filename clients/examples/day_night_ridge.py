@@ -30,6 +30,7 @@ import tempfile
 import time
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -45,7 +46,7 @@ GRID_SPACING = (20.0, 20.0, 4.0)
 GRID_SHAPE = (141, 19, 30)
 
 
-def study_job(period: str) -> dict:
+def study_job(period: str) -> dict[str, Any]:
     """The job of one period (a job dict in the format of scenes/, see README)."""
     return {
         "name": f"ridge-{period}",

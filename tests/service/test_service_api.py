@@ -177,12 +177,21 @@ def test_path_traversal_is_rejected(keyed):
 
 
 def test_queue_full_answers_429(tmp_path):
-    srv = ServerProcess(tmp_path / "data", workers=0, env={"BENTRAY_MAX_QUEUE": "2"}).start()
+    env = {"BENTRAY_MAX_QUEUE": "2", "BENTRAY_RETRY_AFTER_SECONDS": "7"}
+    srv = ServerProcess(tmp_path / "data", workers=0, env=env).start()
     try:
         with srv.client() as http:
             ids = [http.post("/v1/jobs", json=tiny_job(name=f"q{i}")).json()["id"] for i in range(2)]
             r = http.post("/v1/jobs", json=tiny_job(name="q2"))
             assert r.status_code == 429 and r.json()["error"] == "queue_full"
+            assert r.headers["retry-after"] == "7"  # issue 15: a 429 says when to retry
+            from bentray.clients.client import BentrayClient, ServiceError
+
+            job_file = tmp_path / "q.json"
+            job_file.write_text(json.dumps(tiny_job(name="qc")))
+            with BentrayClient(srv.url) as client, pytest.raises(ServiceError) as info:
+                client.submit(job_file)
+            assert info.value.status == 429 and info.value.retry_after_s == 7.0
             assert len(http.get("/v1/jobs").json()["jobs"]) == 2
             # cancelling a queued job frees a place at once
             r = http.delete(f"/v1/jobs/{ids[0]}")
