@@ -20,9 +20,14 @@ import sys
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import bentray
 from bentray.engine.errors import BentrayError
+
+if TYPE_CHECKING:
+    from bentray.engine.result import JobOutcome
+    from bentray.scenes.schema import Job
 
 # Errors reported as one line with exit status 1: bentray's own (engine/errors.py) and the usual
 # input/resource failures. Anything else is a bug and keeps its traceback.
@@ -63,13 +68,13 @@ def _positive_int(text: str) -> int:
 def _set_threads(n: int) -> None:
     import numba
 
-    available = numba.config.NUMBA_NUM_THREADS
+    available = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]  # set at import
     if n > available:
         raise CommandError(f"--threads {n} exceeds the {available} threads numba can use", code=2)
     numba.set_num_threads(n)
 
 
-def _load(job_path: Path):
+def _load(job_path: Path) -> Job:
     from pydantic import ValidationError
 
     from bentray.scenes.schema import JobFileError, format_validation_error, load_job
@@ -84,7 +89,7 @@ def _load(job_path: Path):
         ) from None
 
 
-def _summary(job, outcome, written: list[Path], wall_s: float) -> str:
+def _summary(job: Job, outcome: JobOutcome, written: list[Path], wall_s: float) -> str:
     trace = outcome.trace
     lines = [f"job {job.name}: {trace.n_rays} rays in {wall_s:.2f} s"]
     counts = {name: n for name, n in trace.status_counts().items() if n}
@@ -123,7 +128,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_run(sub: argparse._SubParsersAction) -> None:
+def _add_run(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("run", help="trace one job file and write its outputs", description="Trace one job.")
     p.add_argument("job", help="job file (JSON, see scenes/examples/)")
     p.add_argument("--out", required=True, help="output directory (created; files replaced all-or-nothing)")
@@ -158,7 +163,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_bench(sub: argparse._SubParsersAction) -> None:
+def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     from bentray.engine.bench.runner import SECTIONS
 
     p = sub.add_parser(
@@ -210,7 +215,7 @@ def cmd_scenes(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_scenes(sub: argparse._SubParsersAction) -> None:
+def _add_scenes(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     from bentray.scenes.library.registry import BUILTIN_SCENES, RESOLUTIONS
 
     p = sub.add_parser(
@@ -231,10 +236,14 @@ def _add_scenes(sub: argparse._SubParsersAction) -> None:
 
 
 # Each entry adds one subcommand parser (with set_defaults(func=handler)).
-COMMANDS: list[Callable[[argparse._SubParsersAction], None]] = [_add_run, _add_bench, _add_scenes]
+COMMANDS: list[Callable[[argparse._SubParsersAction[argparse.ArgumentParser]], None]] = [
+    _add_run,
+    _add_bench,
+    _add_scenes,
+]
 
 
-def _add_sweep(sub: argparse._SubParsersAction) -> None:
+def _add_sweep(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     from bentray.clients.sweep_cli import add_sweep  # bentray sweep (one job per parameter value)
 
     add_sweep(sub)
@@ -243,7 +252,7 @@ def _add_sweep(sub: argparse._SubParsersAction) -> None:
 COMMANDS.append(_add_sweep)
 
 
-def _add_service_verbs(sub: argparse._SubParsersAction) -> None:
+def _add_service_verbs(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     from bentray.clients.service_cli import SERVICE_COMMANDS  # serve, submit, status, fetch, cancel
 
     for add in SERVICE_COMMANDS:

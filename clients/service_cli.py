@@ -17,7 +17,13 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, TextIO
+
+if TYPE_CHECKING:
+    from bentray.clients.client import BentrayClient
+    from bentray.service.models import JobInfo
 
 __all__ = ["SERVICE_COMMANDS"]
 
@@ -36,13 +42,13 @@ def _error(exc: Exception, code: int | None = None) -> Exception:
     return CommandError(f"cannot reach the service: {exc}", code=code or 1)
 
 
-def _client(args: argparse.Namespace):
+def _client(args: argparse.Namespace) -> BentrayClient:
     from bentray.clients.client import BentrayClient
 
     return BentrayClient(args.url, api_key=args.key)
 
 
-def _call(args: argparse.Namespace, fn):
+def _call(args: argparse.Namespace, fn: Callable[[BentrayClient], int]) -> int:
     import httpx
 
     from bentray.clients.client import ServiceError
@@ -70,7 +76,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_info(info, out=None) -> None:
+def _print_info(info: JobInfo, out: TextIO | None = None) -> None:
     out = out or sys.stdout
     line = f"{info.id}  {info.name:<24} {info.status:<10} {info.stage:<12} {100 * info.progress:5.1f}%"
     if info.error:
@@ -87,7 +93,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
     if args.out and not args.wait:
         raise CommandError("--out needs --wait (or use 'bentray fetch ID --out DIR' later)", code=2)
 
-    def run(client):
+    def run(client: BentrayClient) -> int:
         info = client.submit(job_path, files=args.file)
         print(f"submitted {info.id} ({info.name})", file=sys.stderr)
         if not args.wait:
@@ -106,7 +112,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
 
 
 def cmd_status(args: argparse.Namespace) -> int:
-    def run(client):
+    def run(client: BentrayClient) -> int:
         infos = [client.get(args.id)] if args.id else client.list()
         for info in infos:
             _print_info(info)
@@ -118,7 +124,7 @@ def cmd_status(args: argparse.Namespace) -> int:
 
 
 def cmd_fetch(args: argparse.Namespace) -> int:
-    def run(client):
+    def run(client: BentrayClient) -> int:
         written = client.download(args.id, args.out, names=args.name)
         print("wrote: " + ", ".join(str(p) for p in written))
         return 0
@@ -127,7 +133,7 @@ def cmd_fetch(args: argparse.Namespace) -> int:
 
 
 def cmd_cancel(args: argparse.Namespace) -> int:
-    def run(client):
+    def run(client: BentrayClient) -> int:
         info = client.cancel(args.id)
         print(
             f"{args.id} deleted"
@@ -152,7 +158,7 @@ def _client_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-def _add_serve(sub: argparse._SubParsersAction) -> None:
+def _add_serve(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "serve",
         help="run the HTTP service (API and job processes)",
@@ -166,7 +172,7 @@ def _add_serve(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_serve)
 
 
-def _add_submit(sub: argparse._SubParsersAction) -> None:
+def _add_submit(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "submit",
         help="submit a job file to the service",
@@ -181,14 +187,14 @@ def _add_submit(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_submit)
 
 
-def _add_status(sub: argparse._SubParsersAction) -> None:
+def _add_status(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("status", help="show one job or list your jobs")
     p.add_argument("id", nargs="?", default=None)
     _client_options(p)
     p.set_defaults(func=cmd_status)
 
 
-def _add_fetch(sub: argparse._SubParsersAction) -> None:
+def _add_fetch(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("fetch", help="download a finished job's results")
     p.add_argument("id")
     p.add_argument("--out", required=True, help="output folder")
@@ -197,7 +203,7 @@ def _add_fetch(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=cmd_fetch)
 
 
-def _add_cancel(sub: argparse._SubParsersAction) -> None:
+def _add_cancel(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser("cancel", help="cancel a queued or running job, or delete a finished one")
     p.add_argument("id")
     _client_options(p)

@@ -197,11 +197,12 @@ def run_sweep(
         ]
         index = {f.key: i for i, f in enumerate(futures)}
         try:
-            for fut, outcome in as_completed(futures, loop=client.loop, with_results=True):
+            completed = as_completed(futures, loop=client.loop, with_results=True)  # type: ignore[no-untyped-call]
+            for fut, outcome in completed:
                 fut.release()
                 finish(index[fut.key], aligned_arrays(outcome))
         finally:
-            client.cancel([f for f in futures if not f.done()])
+            client.cancel([f for f in futures if not f.done()])  # type: ignore[no-untyped-call]
     ordered = [rows[label] for label, *_ in specs]
     write_sweep_csv(param, ordered, out_dir / "sweep.csv")
     return ordered
@@ -270,7 +271,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_sweep(sub: argparse._SubParsersAction) -> None:
+def add_sweep(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "sweep",
         help="run one job per value of a parameter; write DIR/<param>=<value>/ and sweep.csv",
