@@ -27,6 +27,18 @@ def _load_study():
     return module
 
 
+def test_study_jobs_are_valid_jobs_with_the_advertised_profiles():
+    from bentray.scenes.schema import Job
+
+    study = _load_study()
+    for config in (study.FULL, study.QUICK):
+        jobs = {period: Job.model_validate(study.study_job(period, config)) for period in study.PROFILES}
+        assert jobs["day"].profile.b == -1.0 and jobs["night"].profile.b == 1.0  # A-LU by day, A-LD at night
+        assert tuple(jobs["day"].field.shape) == config.grid_shape
+    assert study.FULL.elevations * study.FULL.azimuths == 121 * 720  # the README's study, unchanged
+
+
+@pytest.mark.slow  # a local service, two job processes, two ridge meshes: about 50 s on 2 busy cores
 def test_quick_day_night_study_writes_maps_plot_and_csv(tmp_path, capsys):
     study = _load_study()
     assert study.main(["--start-server", "--quick", "--out", str(tmp_path)]) == 0
