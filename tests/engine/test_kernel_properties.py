@@ -18,6 +18,8 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 import bentray  # noqa: F401
 from bentray.engine.constants import STATUS_EXITED, STATUS_TIME_LIMIT
@@ -26,10 +28,6 @@ from bentray.engine.mesh.fcc import fcc_resample
 from bentray.engine.mesh.slabs import build_slab_mesh, locate_in_slabs
 from bentray.engine.mesh.tets import build_tet_mesh
 from bentray.engine.tracer import trace
-
-hypothesis = pytest.importorskip("hypothesis")
-from hypothesis import HealthCheck, given, settings  # noqa: E402
-from hypothesis import strategies as st  # noqa: E402
 
 LO = np.array([0.0, 0.0, 0.0])
 HI = np.array([200.0, 160.0, 120.0])
