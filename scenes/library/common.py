@@ -44,7 +44,7 @@ class Rng:
     def __init__(self, seed: int) -> None:
         self._gen = np.random.default_rng(seed)
 
-    def uniform(self, low: float, high: float, size: int | None = None) -> Any:
+    def uniform(self, low: float, high: float, size: int | tuple[int, ...] | None = None) -> Any:
         return low + (high - low) * self._gen.random(size)
 
 
