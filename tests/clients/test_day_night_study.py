@@ -38,7 +38,7 @@ def test_study_jobs_are_valid_jobs_with_the_advertised_profiles():
     assert study.FULL.elevations * study.FULL.azimuths == 121 * 720  # the README's study, unchanged
 
 
-@pytest.mark.slow  # a local service, two job processes, two ridge meshes: about 50 s on 2 busy cores
+@pytest.mark.slow  # a local service, two job processes, two ridge meshes: 21 s warm
 def test_quick_day_night_study_writes_maps_plot_and_csv(tmp_path, capsys):
     study = _load_study()
     assert study.main(["--start-server", "--quick", "--out", str(tmp_path)]) == 0

@@ -138,7 +138,6 @@ def test_speedups_and_stalls_bookkeeping():
     assert not st["dopri5 (exact)"]["stalls"] and not st["analytic (mesh)"]["stalls"]
 
 
-@pytest.mark.slow  # 106 s warm on 2 busy cores; the quick bench subset below stays in the default tier
 def test_breakdown_recording_walk_matches_the_tracer():
     """The recording walk behind Table 3 takes exactly as many steps as the real tracer (one entry per
     segment on a slab mesh without nudges), and every recorded entry point lies in its cell."""

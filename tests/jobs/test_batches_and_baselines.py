@@ -82,7 +82,7 @@ def _baseline_job(curve: str, **solver) -> Job:
 @pytest.mark.parametrize(
     "curve, solver",
     [
-        pytest.param("rk4", {"step_m": 0.5, "media": "exact"}, marks=pytest.mark.slow),  # 147 s: fixed 0.5 m steps
+        ("rk4", {"step_m": 0.5, "media": "exact"}),
         ("dopri5", {"tolerance": 1e-9, "media": "exact"}),
         ("dopri5", {"tolerance": 1e-9, "media": "mesh"}),
     ],

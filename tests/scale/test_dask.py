@@ -255,7 +255,7 @@ def test_same_field_and_rays_as_local_with_progress_per_batch(client, local_runs
     _assert_same(local, other, rtol=FIELD_RTOL)
 
 
-@pytest.mark.slow  # 14 s warm on 2 busy cores
+@pytest.mark.slow  # 11 s warm (+8 s of its own local runs)
 def test_many_sources_fan_out_as_separate_tasks(client):
     # 200 sources x 6 rays: one batch per source (ranges never straddle sources), every ray counted
     xs = np.linspace(0.0, 200.0, 200)
@@ -310,7 +310,6 @@ def test_scheduler_address_is_read_by_the_cli_and_the_service_settings(monkeypat
     assert dask_address(None) is None and Settings.from_env().dask_scheduler is None
 
 
-@pytest.mark.slow  # runs the job three times, once through the CLI: about 20 s more on the cluster
 def test_scheduler_from_the_environment(client, local_runs, monkeypatch, tmp_path):
     monkeypatch.setenv("BENTRAY_DASK_SCHEDULER", client.scheduler.address)
     assert run_job(_job("incoherent", batch_rays=100)).report["batches"]["executor"] == "local"
@@ -324,7 +323,6 @@ def test_scheduler_from_the_environment(client, local_runs, monkeypatch, tmp_pat
     assert report["batches"]["executor"] == "dask"
 
 
-@pytest.mark.slow  # 23 s warm on 2 busy cores (a run and a 3-value sweep)
 def test_run_and_sweep_commands_on_the_cluster(client, tmp_path, capsys):
     job_path = tmp_path / "job.json"
     job_path.write_text(json.dumps(_spec(el=11, az=5)), encoding="utf-8")
