@@ -85,7 +85,7 @@ def _positive_int(text: str) -> int:
 def _set_threads(n: int) -> None:
     import numba
 
-    available = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
+    available = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]  # set at import
     if n > available:
         raise CommandError(f"--threads {n} exceeds the {available} threads numba can use", code=2)
     numba.set_num_threads(n)

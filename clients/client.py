@@ -227,7 +227,9 @@ class BentrayClient:
                 raise WaitTimeout(f"job {job_id} is still {info.status} ({info.stage}) after {timeout_s} s")
             time.sleep(poll_s)
 
-    def download(self, job_id: str, out_dir: str | Path, names: Sequence[str] | None = None) -> builtins.list[Path]:
+    def download(
+        self, job_id: str, out_dir: str | Path, names: Sequence[str] | None = None
+    ) -> builtins.list[Path]:  # builtins: the method ``list`` shadows the type here
         """Stream result files (default: all of a succeeded job) into ``out_dir``; returns the paths.
 
         Each file is written to a temporary name and renamed when complete.

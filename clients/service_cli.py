@@ -19,7 +19,7 @@ import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import IO, TYPE_CHECKING
+from typing import TYPE_CHECKING, TextIO
 
 if TYPE_CHECKING:
     from bentray.clients.client import BentrayClient
@@ -76,7 +76,7 @@ def cmd_serve(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_info(info: JobInfo, out: IO[str] | None = None) -> None:
+def _print_info(info: JobInfo, out: TextIO | None = None) -> None:
     out = out or sys.stdout
     line = f"{info.id}  {info.name:<24} {info.status:<10} {info.stage:<12} {100 * info.progress:5.1f}%"
     if info.error:

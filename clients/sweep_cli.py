@@ -197,7 +197,8 @@ def run_sweep(
         ]
         index = {f.key: i for i, f in enumerate(futures)}
         try:
-            for fut, outcome in as_completed(futures, loop=client.loop, with_results=True):  # type: ignore[no-untyped-call]
+            completed = as_completed(futures, loop=client.loop, with_results=True)  # type: ignore[no-untyped-call]
+            for fut, outcome in completed:
                 fut.release()
                 finish(index[fut.key], aligned_arrays(outcome))
         finally:

@@ -98,7 +98,7 @@ def task_numba_threads(worker_nthreads: int, budget: int | None = None) -> int:
     budget: the cores this worker may use (default ``BENTRAY_WORKER_NUMBA_THREADS``, else numba's
     ``NUMBA_NUM_THREADS``); the result is at least 1 and at most ``NUMBA_NUM_THREADS``.
     """
-    limit = int(numba.config.NUMBA_NUM_THREADS)
+    limit = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]  # set at import
     if budget is None:
         budget = int(os.environ.get("BENTRAY_WORKER_NUMBA_THREADS", "0") or 0) or limit
     return max(1, min(limit, int(budget) // max(int(worker_nthreads), 1)))
@@ -116,7 +116,8 @@ def on_worker(fn: Callable[..., Any], *args: Any, numba_threads: int | None = No
         except ValueError:  # not inside a worker (e.g. a synchronous scheduler): use this process's threads
             nthreads = 1
         numba_threads = task_numba_threads(nthreads)
-    numba.set_num_threads(min(int(numba_threads), int(numba.config.NUMBA_NUM_THREADS)))
+    limit = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]  # set at import
+    numba.set_num_threads(min(int(numba_threads), limit))
     return fn(*args, **kwargs)
 
 
@@ -174,7 +175,9 @@ class DaskExecutor:
     ) -> None:
         if isinstance(address_or_client, Client):
             self._client: Client | None = address_or_client
-            self.address = str(address_or_client.scheduler.address)
+            scheduler = address_or_client.scheduler
+            assert scheduler is not None, "the Dask client is not connected to a scheduler"
+            self.address = str(scheduler.address)
         else:
             self._client = None
             self.address = str(address_or_client)

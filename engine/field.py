@@ -134,7 +134,11 @@ def prepare(
     second set of bands accumulates the powered energy (SPL);
     the first set always holds unit-power energy (TL).
     """
-    grid = FieldGrid(np.asarray(spec.origin, float), np.asarray(spec.spacing, float), tuple(spec.shape))
+    grid = FieldGrid(
+        np.asarray(spec.origin, float),
+        np.asarray(spec.spacing, float),
+        (int(spec.shape[0]), int(spec.shape[1]), int(spec.shape[2])),
+    )
     n_f = len(spec.frequencies_hz)
     alpha = energy_absorption(spec)
     q2 = build_q2_table(np.asarray(spec.frequencies_hz, float), materials, c=ground_sound_speed)

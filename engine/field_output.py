@@ -88,11 +88,11 @@ def _field_value(name: str, value: FieldDataValue) -> np.ndarray | str | list[st
         return value
     if isinstance(value, bool):
         raise ValueError(f"field data {name!r}: booleans are not supported, write 'true'/'false' or 0/1")
-    if isinstance(value, numbers.Real):
+    if isinstance(value, (int, float)) or isinstance(value, numbers.Real):  # numpy scalars are Real too
         return np.array([float(value)])
     items = list(value)
     if items and all(isinstance(v, str) for v in items):
-        return items
+        return [str(v) for v in items]
     try:
         arr = np.asarray(items, dtype=np.float64)
     except (TypeError, ValueError) as exc:

@@ -70,7 +70,7 @@ def choose_representation(profile: Profile, requested: str, wind: Wind | None = 
     wind's gradient.
     """
     windy = wind is not None
-    horizontal = not profile.stratified or (windy and not wind_is_stratified(int(wind[0])))
+    horizontal = not profile.stratified or (wind is not None and not wind_is_stratified(int(wind[0])))
     still_air = profile.kind == "homogeneous" and not windy
     if requested != "auto":
         if requested in ("uniform", "slabs") and horizontal:

@@ -345,6 +345,7 @@ class LinearN2(_LinearInZ):
     kind = "linear_n2"
     _native = "n2"
     _param = "n0"
+    n0: float  # set by _LinearInZ.__init__
 
     def __init__(self, n0: float = 1.0, alpha: float = 0.01, c_ref: float = 340.0) -> None:
         super().__init__(n0, alpha, c_ref)

@@ -117,7 +117,7 @@ def concat_traces(parts: list[TraceResult]) -> TraceResult:
             time_s=np.concatenate([p.paths.time_s for p in parts if p.paths is not None]),
             length_m=np.concatenate([p.paths.length_m for p in parts if p.paths is not None]),
         )
-    required = {
+    required: dict[str, Any] = {  # the always-present arrays (cat gives None only for optional ones)
         name: cat(name)
         for name in (
             "source",
@@ -136,7 +136,7 @@ def concat_traces(parts: list[TraceResult]) -> TraceResult:
     return TraceResult(
         **required,
         paths=paths,
-        steps=cat("steps"),  # type: ignore[arg-type]
+        steps=cat("steps"),
         reflection_cos=cat("reflection_cos"),
         reflection_material=cat("reflection_material"),
         paraxial=cat("paraxial"),

@@ -16,7 +16,7 @@ import math
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -264,6 +264,12 @@ def write_report_json(report: dict, path: str | Path) -> Path:
 # ---------------------------------------------------------------------------------------------
 # All outputs of a job
 # ---------------------------------------------------------------------------------------------
+def _mesh_geometry(outcome: JobOutcome) -> MeshGeometry:
+    if outcome.mesh_geometry is None:
+        raise ValueError("'mesh' output requested but the job produced no mesh geometry")
+    return outcome.mesh_geometry
+
+
 def _write_field(outcome: JobOutcome, path: Path) -> None:
     from bentray.engine.field_output import write_field_vti
 
@@ -306,7 +312,7 @@ def write_receivers_csv(table: Any, path: str | Path) -> Path:
     return path
 
 
-def _planned_files(outcome: JobOutcome, outputs: list[str]) -> list[str]:
+def _planned_files(outcome: JobOutcome, outputs: Sequence[str]) -> list[str]:
     unknown = [name for name in outputs if name not in _KNOWN_OUTPUTS]
     if unknown:
         raise ValueError(f"unknown outputs {unknown}; known: {list(_KNOWN_OUTPUTS)}")
@@ -333,7 +339,7 @@ def _planned_files(outcome: JobOutcome, outputs: list[str]) -> list[str]:
     return files
 
 
-def write_outcome(outcome: JobOutcome, outputs: list[str], out_dir: str | Path) -> list[Path]:
+def write_outcome(outcome: JobOutcome, outputs: Sequence[str], out_dir: str | Path) -> list[Path]:
     """Write the requested outputs into ``out_dir``; all files or none.
 
     "rays" -> rays.csv (and rays.vtp when ``trace.paths`` is present), "paths" -> rays.vtp (an error
@@ -350,7 +356,7 @@ def write_outcome(outcome: JobOutcome, outputs: list[str], out_dir: str | Path) 
     writers = {
         "rays.csv": lambda p: write_rays_csv(outcome.trace, p),
         "rays.vtp": lambda p: write_rays_vtp(outcome.trace, p),
-        "mesh.vtu": lambda p: write_mesh_vtu(outcome.mesh_geometry, p),
+        "mesh.vtu": lambda p: write_mesh_vtu(_mesh_geometry(outcome), p),
         "report.json": lambda p: write_report_json(outcome.report, p),
         "field.vti": lambda p: _write_field(outcome, p),
         "preview.png": lambda p: _write_preview(outcome, p),

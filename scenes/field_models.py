@@ -117,4 +117,7 @@ class FieldSpec(BaseModel):
 
     @property
     def upper_corner(self) -> np.ndarray:
-        return np.asarray(self.origin, float) + (np.asarray(self.shape) - 1) * np.asarray(self.spacing, float)
+        corner: np.ndarray = np.asarray(self.origin, float) + (np.asarray(self.shape) - 1) * np.asarray(
+            self.spacing, float
+        )
+        return corner

@@ -64,7 +64,8 @@ def merge_duplicate_vertices(vertices: np.ndarray, faces: np.ndarray) -> tuple[n
 def _plan_area2(tri: np.ndarray) -> np.ndarray:
     """Twice the signed plan-view area of (T, 3, >=2) triangles (> 0: counter-clockwise from above)."""
     e1, e2 = tri[:, 1, :2] - tri[:, 0, :2], tri[:, 2, :2] - tri[:, 0, :2]
-    return e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    area2: np.ndarray = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+    return area2
 
 
 def orient_ccw_from_above(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -131,14 +132,14 @@ def height_field_problem(vertices: np.ndarray, faces: np.ndarray) -> str | None:
             "lies inside it): not a height field"
         )
     a, b = xy[edge_v[:, 0]], xy[edge_v[:, 1]]
-    i, j = box_pairs(np.minimum(a, b), np.maximum(a, b))
-    share = np.any(edge_v[i][:, :, None] == edge_v[j][:, None, :], axis=(1, 2))
-    i, j = i[~share], j[~share]
-    cross = segments_cross(a[i], b[i], a[j], b[j], tol, touching=False)
+    ia, ib = box_pairs(np.minimum(a, b), np.maximum(a, b))
+    share = np.any(edge_v[ia][:, :, None] == edge_v[ib][:, None, :], axis=(1, 2))
+    ia, ib = ia[~share], ib[~share]
+    cross = segments_cross(a[ia], b[ia], a[ib], b[ib], tol, touching=False)
     if np.any(cross):
         n = int(np.argmax(cross))
         return (
-            f"edges {_fmt(a[i[n]])}-{_fmt(b[i[n]])} and {_fmt(a[j[n]])}-{_fmt(b[j[n]])} cross seen from above: "
+            f"edges {_fmt(a[ia[n]])}-{_fmt(b[ia[n]])} and {_fmt(a[ib[n]])}-{_fmt(b[ib[n]])} cross seen from above: "
             "not a height field"
         )
     return None

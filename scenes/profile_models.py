@@ -321,7 +321,8 @@ def profile_from_spec(spec: Any, base_dir: str | Path | None = None) -> Profile:
                 path = Path(base_dir) / path
             return build_profile("grid", path=str(path), c_ref=spec.c_ref)
         return build_profile("grid", origin=spec.origin, spacing=spec.spacing, c=spec.c, c_ref=spec.c_ref)
-    params = spec.model_dump(exclude={"kind"})
+    params = spec.model_dump()
+    kind = str(params.pop("kind"))  # every concrete spec has its Literal kind (the base declares none)
     if isinstance(spec, TableSpec):
         params = {k: v for k, v in params.items() if v is not None}
-    return build_profile(spec.kind, **params)
+    return build_profile(kind, **params)

@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from bentray.engine.errors import JobInputError
 from bentray.engine.surfaces import Footprint, HeightGrid, TriangleSurface
@@ -187,12 +188,12 @@ def read_esri_ascii(path: str | Path) -> HeightGrid:
         if not header[key].is_integer() or header[key] < 1:
             raise _fail(path, f"{key} must be a positive integer, got {header[key]:g}")
     nx, ny = int(header["ncols"]), int(header["nrows"])
-    origin = []
+    origin: list[float] = []
     for axis in ("x", "y"):
         corner, center = f"{axis}llcorner", f"{axis}llcenter"
         if (corner in header) == (center in header):
             raise _fail(path, f"header needs exactly one of {corner} and {center}")
-        origin.append(header.get(corner, header.get(center)))
+        origin.append(header[corner] if corner in header else header[center])
     if "cellsize" in header:
         if "dx" in header or "dy" in header:
             raise _fail(path, "header gives both cellsize and dx/dy")
@@ -249,9 +250,9 @@ def _is_float(token: str) -> bool:
     return True
 
 
-def _grid_from_origin(path: Path, z: np.ndarray, origin, spacing) -> HeightGrid:
-    origin = np.asarray(origin, dtype=np.float64).reshape(-1)
-    spacing = np.asarray(spacing, dtype=np.float64).reshape(-1)
+def _grid_from_origin(path: Path, z: np.ndarray, origin_xy: ArrayLike, spacing_xy: ArrayLike) -> HeightGrid:
+    origin = np.asarray(origin_xy, dtype=np.float64).reshape(-1)
+    spacing = np.asarray(spacing_xy, dtype=np.float64).reshape(-1)
     if origin.shape != (2,) or not np.all(np.isfinite(origin)):
         raise _fail(path, f"origin must be 2 finite numbers (x, y), got {origin.tolist()}")
     if spacing.shape != (2,) or not np.all(np.isfinite(spacing)) or np.any(spacing <= 0):
@@ -269,12 +270,12 @@ def _height_array(path: Path, z: Any, name: str) -> np.ndarray:
     if z.ndim != 2:
         raise _fail(path, f"{name} must be a 2D array (ny, nx), got shape {z.shape}")
     _check_samples(path, *z.shape)
-    z = np.array(z, dtype=np.float64)
-    _check_heights(path, z, lambda i, j: f"{name}[{i}, {j}]")
-    return z
+    heights: np.ndarray = np.array(z, dtype=np.float64)
+    _check_heights(path, heights, lambda i, j: f"{name}[{i}, {j}]")
+    return heights
 
 
-def read_height_npy(path: str | Path, origin, spacing) -> HeightGrid:
+def read_height_npy(path: str | Path, origin: ArrayLike, spacing: ArrayLike) -> HeightGrid:
     """``.npy`` heights (ny, nx), row i at y = origin[1] + i spacing[1]; origin, spacing (2,) metres."""
     path = Path(path)
     _check_size(path)
@@ -476,7 +477,7 @@ def _footprints(path: Path, i: int, feature: Any, materials: dict[str, int], sto
     label = f"features.{i}"
     if not isinstance(feature, dict) or feature.get("type") != "Feature":
         raise _fail(path, f'{label}: expected an object with "type": "Feature"')
-    props = feature.get("properties") or {}
+    props: Any = feature.get("properties") or {}
     if not isinstance(props, dict):
         raise _fail(path, f'{label}: "properties" must be an object')
     name = props.get("name")
@@ -493,7 +494,7 @@ def _footprints(path: Path, i: int, feature: Any, materials: dict[str, int], sto
     if problem:
         raise _fail(path, f"{label}: {problem}")
     assert height is not None
-    base_z = props.get("base_z")
+    base_z: Any = props.get("base_z")
     if base_z is not None and not _number(base_z):
         raise _fail(path, f'{label}: property "base_z" must be a number (metres) or null, got {base_z!r}')
     material = props.get("material", "rigid")
@@ -526,7 +527,7 @@ def _vertex_count(geometry: Any) -> int:
 # Dispatch
 # ---------------------------------------------------------------------------------------------
 def read_terrain(
-    path: str | Path, file_format: str | None = None, origin=None, spacing=None
+    path: str | Path, file_format: str | None = None, origin: ArrayLike | None = None, spacing: ArrayLike | None = None
 ) -> HeightGrid | TriangleSurface:
     """Read a terrain file by format (default: the file suffix): asc, npy (needs origin and spacing), npz,
     obj, stl, ply."""

@@ -73,4 +73,6 @@ def wind_from_spec(spec: Any) -> tuple[int, np.ndarray]:
         spec = WIND_SPEC_ADAPTER.validate_python(spec)
     if not isinstance(spec, _WindSpecBase):
         raise TypeError(f"expected a wind spec model or dict, got {type(spec).__name__}")
-    return wind_spec(spec.kind, spec.model_dump(exclude={"kind"}))
+    params = spec.model_dump()
+    kind = str(params.pop("kind"))  # every concrete spec has its Literal kind (the base declares none)
+    return wind_spec(kind, params)

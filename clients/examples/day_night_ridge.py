@@ -12,6 +12,7 @@ the terrain and writes
 
     python clients/examples/day_night_ridge.py --start-server --out results/day-night-ridge
     python clients/examples/day_night_ridge.py --url http://host:8000 --key KEY --out DIR
+    python clients/examples/day_night_ridge.py --start-server --quick --out DIR    # coarse smoke run
 
 ``--start-server`` runs ``python -m bentray.service serve`` on a free local port for the study.
 Ray acoustics leaves geometric shadows empty (NaN): such cells are blank in the maps and in the CSV.
@@ -29,6 +30,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -39,31 +41,53 @@ from bentray.scenes.library.ridge import ridge_height
 
 SOURCE = (0.0, 0.0, 42.0)  # 2 m above the 40 m crest
 RECEIVER_HEIGHT_M = 4.0  # above the local terrain
-BANDS_HZ = (125, 250, 500, 1000, 2000)
 PROFILES = {"day": -1.0, "night": 1.0}  # log-profile b: A-LU (day), A-LD (night)
-GRID_ORIGIN = (-1400.0, -180.0, 1.0)
-GRID_SPACING = (20.0, 20.0, 4.0)
-GRID_SHAPE = (141, 19, 30)
 
 
-def study_job(period: str) -> dict[str, Any]:
+@dataclass(frozen=True)
+class Study:
+    """Sizes of the study: field grid (origin, spacing m; shape points) and launch fan (counts)."""
+
+    grid_origin: tuple[float, float, float] = (-1400.0, -180.0, 1.0)
+    grid_spacing: tuple[float, float, float] = (20.0, 20.0, 4.0)
+    grid_shape: tuple[int, int, int] = (141, 19, 30)
+    elevations: int = 121
+    azimuths: int = 720
+    bands_hz: tuple[int, ...] = (125, 250, 500, 1000, 2000)
+    max_time_s: float = 4.5
+
+
+FULL = Study()
+# --quick: the same study on a coarse grid and a sparse fan (seconds; used by the test suite)
+QUICK = Study(
+    grid_origin=(-600.0, -100.0, 1.0),
+    grid_spacing=(100.0, 100.0, 10.0),
+    grid_shape=(13, 3, 8),
+    elevations=61,
+    azimuths=24,
+    bands_hz=(500, 1000),
+    max_time_s=2.0,
+)
+
+
+def study_job(period: str, study: Study = FULL) -> dict[str, Any]:
     """The job of one period (a job dict in the format of scenes/, see README)."""
     return {
         "name": f"ridge-{period}",
         "scene": {"builtin": "ridge", "resolution": "medium", "ground": {"kind": "flat"}},
         "profile": {"kind": "log", "c0": 340.0, "b": PROFILES[period], "z_g": 1.0},
-        "sources": [{"position": list(SOURCE), "name": "crest", "power_db": {str(f): 100.0 for f in BANDS_HZ}}],
+        "sources": [{"position": list(SOURCE), "name": "crest", "power_db": {str(f): 100.0 for f in study.bands_hz}}],
         "rays": {
-            "elevation_deg": {"min": -45, "max": 45, "count": 121},
-            "azimuth_deg": {"min": 0, "max": 359.5, "count": 720},
-            "max_time_s": 4.5,
+            "elevation_deg": {"min": -45, "max": 45, "count": study.elevations},
+            "azimuth_deg": {"min": 0, "max": 360.0 * (1 - 1 / study.azimuths), "count": study.azimuths},
+            "max_time_s": study.max_time_s,
             "max_reflections": 4,
         },
         "field": {
-            "origin": list(GRID_ORIGIN),
-            "spacing": list(GRID_SPACING),
-            "shape": list(GRID_SHAPE),
-            "frequencies_hz": list(BANDS_HZ),
+            "origin": list(study.grid_origin),
+            "spacing": list(study.grid_spacing),
+            "shape": list(study.grid_shape),
+            "frequencies_hz": list(study.bands_hz),
             "mode": "incoherent",
         },
         "outputs": ["field", "report"],
@@ -109,16 +133,17 @@ def local_server() -> Iterator[str]:
             proc.wait(30)
 
 
-def level_above_ground(vti: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def level_above_ground(vti: Path, study: Study = FULL) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """x (nx,), y (ny,) and spl_a (nx, ny) in dB(A), linearly interpolated in z at the receiver height."""
     import pyvista as pv
 
     grid = pv.read(vti)
-    nx, ny, nz = GRID_SHAPE
+    nx, ny, nz = study.grid_shape
     spl = np.asarray(grid.point_data["spl_a"], dtype=np.float64).reshape((nz, ny, nx)).transpose(2, 1, 0)
-    x = GRID_ORIGIN[0] + GRID_SPACING[0] * np.arange(nx)
-    y = GRID_ORIGIN[1] + GRID_SPACING[1] * np.arange(ny)
-    z = GRID_ORIGIN[2] + GRID_SPACING[2] * np.arange(nz)
+    origin, spacing = study.grid_origin, study.grid_spacing
+    x = origin[0] + spacing[0] * np.arange(nx)
+    y = origin[1] + spacing[1] * np.arange(ny)
+    z = origin[2] + spacing[2] * np.arange(nz)
     target = ridge_height(x) + RECEIVER_HEIGHT_M
     out = np.full((nx, ny), np.nan)
     for i in range(nx):
@@ -167,13 +192,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--key", default=os.environ.get("BENTRAY_API_KEY"))
     parser.add_argument("--out", default="results/day-night-ridge")
     parser.add_argument("--start-server", action="store_true", help="run a local service for the study")
+    parser.add_argument("--quick", action="store_true", help="a coarse grid and a sparse fan (a smoke run)")
     args = parser.parse_args(argv)
+    study = QUICK if args.quick else FULL
     out = Path(args.out)
     t0 = time.perf_counter()
     with contextlib.ExitStack() as stack:
         url = stack.enter_context(local_server()) if args.start_server else args.url
         client = stack.enter_context(BentrayClient(url, api_key=args.key))
-        ids = {period: client.submit(study_job(period)).id for period in PROFILES}  # both queued at once
+        ids = {period: client.submit(study_job(period, study)).id for period in PROFILES}  # both queued at once
         maps = {}
         for period, job_id in ids.items():
             info = client.wait(job_id, progress=True)
@@ -181,7 +208,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{period}: job {job_id} {info.status}: {info.error}", file=sys.stderr)
                 return 1
             client.download(job_id, out / period)
-            x, y, maps[period] = level_above_ground(out / period / "field.vti")
+            x, y, maps[period] = level_above_ground(out / period / "field.vti", study)
     plot(x, y, maps, out / "day_night_ridge.png")
     j = int(np.argmin(np.abs(y)))
     with open(out / "day_night_ridge.csv", "w", newline="") as fh:

@@ -350,14 +350,15 @@ def build_terrain_mesh(
     if layer_levels is not None:
         s = check_sigma_levels(layer_levels)
     else:
+        assert vertical_spacing is not None  # exactly one of the two (checked above)
         s = sigma_levels(float(hi[2] - ground.min()), vertical_spacing)
     n_layers = len(s) - 1
     roof_k = roof_levels(s, ground, float(hi[2]), vertex_fp, roof_z)
     z = column_levels(ground, s, float(hi[2]), vertex_fp, roof_z, roof_k)
-    points = np.empty((n_layers + 1, n2, 3))
-    points[:, :, :2] = xy[None]
-    points[:, :, 2] = z
-    points = points.reshape(-1, 3)
+    layered = np.empty((n_layers + 1, n2, 3))
+    layered[:, :, :2] = xy[None]
+    layered[:, :, 2] = z
+    points = layered.reshape(-1, 3)
 
     # --- prisms, tets, neighbours, planes -------------------------------------------------------------
     keep = np.ones((m, n_layers), dtype=bool)

@@ -95,7 +95,7 @@ def _run_tetwild(vertices: np.ndarray, faces: np.ndarray, edge_length: float, ep
         cwd = os.getcwd()
         os.chdir(tmp)
         try:
-            pts, tets = pytetwild.tetrahedralize(
+            pts, tets = pytetwild.tetrahedralize(  # type: ignore[attr-defined]  # not in its __all__
                 np.ascontiguousarray(vertices, dtype=np.float64), np.ascontiguousarray(faces, dtype=np.int32),
                 edge_length_abs=float(edge_length), epsilon=float(epsilon), num_threads=int(num_threads),
                 optimize=optimize, vtk_ordering=True, quiet=True,

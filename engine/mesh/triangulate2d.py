@@ -153,8 +153,8 @@ def stride_thin_grid(x: np.ndarray, y: np.ndarray, spacing_fn: Callable) -> np.n
     """
     gx, gy = np.meshgrid(x, y)
     xy = np.column_stack([gx.ravel(), gy.ravel()])
-    ii, jj = np.meshgrid(np.arange(len(x)), np.arange(len(y)))
-    ii, jj = ii.ravel(), jj.ravel()
+    ii_grid, jj_grid = np.meshgrid(np.arange(len(x)), np.arange(len(y)))
+    ii, jj = ii_grid.ravel(), jj_grid.ravel()
     dx = np.diff(x)
     dy = np.diff(y)
     step = np.maximum(dx[np.minimum(ii, len(dx) - 1)], dy[np.minimum(jj, len(dy) - 1)])

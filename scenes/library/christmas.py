@@ -48,12 +48,12 @@ def village_ground(x: np.ndarray, y: np.ndarray, seed: int = SEED) -> np.ndarray
     for k in range(3):
         r2 = (x - centres[k, 0]) ** 2 + (y - centres[k, 1]) ** 2
         z = z + heights[k] * np.exp(-0.5 * r2 / sigmas[k] ** 2)
-    return z
+    return np.asarray(z)
 
 
 def _place(local: np.ndarray, centre: tuple[float, float], angle: float) -> np.ndarray:
     c, s = np.cos(angle), np.sin(angle)
-    return local @ np.array([[c, s], [-s, c]]) + np.asarray(centre)
+    return np.asarray(local @ np.array([[c, s], [-s, c]]) + np.asarray(centre))
 
 
 def _rectangle(w: float, d: float) -> np.ndarray:

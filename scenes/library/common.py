@@ -44,7 +44,7 @@ class Rng:
     def __init__(self, seed: int) -> None:
         self._gen = np.random.default_rng(seed)
 
-    def uniform(self, low: float, high: float, size: int | None = None) -> Any:
+    def uniform(self, low: float, high: float, size: int | tuple[int, ...] | None = None) -> Any:
         return low + (high - low) * self._gen.random(size)
 
 
@@ -81,7 +81,7 @@ def check_resolution(resolution: str) -> Resolution:
 
 def footprint_triangles(fp: Footprint) -> int:
     """Nominal surface triangles of a prism: two per wall (one quad per polygon edge) plus k - 2 for the roof."""
-    k = fp.polygon.shape[0]
+    k = int(fp.polygon.shape[0])
     return 2 * k + (k - 2)
 
 

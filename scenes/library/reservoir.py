@@ -41,15 +41,15 @@ DAM_CREST_M = 72.0
 DAM_SEAT_M = 3.0  # the dam ends where the slope is this far below its crest (margin for grid interpolation)
 
 
-def valley_floor(y: np.ndarray) -> np.ndarray:
+def valley_floor(y: np.ndarray | float) -> np.ndarray:
     """Valley floor height (m): 2 m at y = -1000 rising 2 % upstream."""
-    return 2.0 + 0.02 * (np.asarray(y) + 1000.0)
+    return np.asarray(2.0 + 0.02 * (np.asarray(y, dtype=np.float64) + 1000.0))
 
 
-def valley_axis_x(y: np.ndarray, seed: int = SEED) -> np.ndarray:
+def valley_axis_x(y: np.ndarray | float, seed: int = SEED) -> np.ndarray:
     """x of the valley axis (m) at y: a seeded meander of amplitude 80 m and wavelength 1.6 km."""
     phase = Rng(seed).uniform(0.0, 2.0 * np.pi)
-    return 80.0 * np.sin(2.0 * np.pi * np.asarray(y) / 1600.0 + phase)
+    return np.asarray(80.0 * np.sin(2.0 * np.pi * np.asarray(y, dtype=np.float64) / 1600.0 + phase))
 
 
 def _natural(x: np.ndarray, y: np.ndarray, seed: int) -> np.ndarray:
@@ -61,7 +61,7 @@ def _natural(x: np.ndarray, y: np.ndarray, seed: int) -> np.ndarray:
         k = 2.0 * np.pi / rng.uniform(150.0, 400.0)
         theta, phi = rng.uniform(0.0, 2.0 * np.pi), rng.uniform(0.0, 2.0 * np.pi)
         rough += 0.5 * np.cos(k * (x * np.cos(theta) + y * np.sin(theta)) + phi)
-    return valley_floor(y) + SLOPE_HEIGHT_M * slope + (3.0 + rough) * slope
+    return np.asarray(valley_floor(y) + SLOPE_HEIGHT_M * slope + (3.0 + rough) * slope)
 
 
 def valley_height(x: np.ndarray, y: np.ndarray, seed: int = SEED) -> np.ndarray:

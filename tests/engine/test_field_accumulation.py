@@ -158,6 +158,7 @@ def test_field_is_deterministic() -> None:
         np.testing.assert_array_equal(first[name], second[name])
 
 
+@pytest.mark.slow  # two field jobs on a long fan: 12 s warm
 def test_downward_refraction_fills_the_upward_shadow() -> None:
     """A-LD (log, b = +1) reaches 4 m above the ground at 500-1000 m; A-LU (b = -1) leaves it in the
     geometric shadow: no ray passes there, so ray acoustics gives no level (diffraction and turbulence

@@ -86,6 +86,7 @@ def test_profile_kind_runs(tmp_path, profile, representation):
         assert mesh["approximation_error_eq14"]["rel_error_cell_linear"] < 1e-2
 
 
+@pytest.mark.slow  # 10 s warm; the hot spot still runs in test_profile_kind_runs
 def test_hot_spot_error_falls_with_delta():
     profile = {"kind": "hot_spot", "center": [0, 0, 10], "t_s": 320, "d0": 30}
     hs = HotSpot(center=(0, 0, 10), t_s=320, d0=30)

@@ -19,6 +19,7 @@ trimesh = pytest.importorskip("trimesh")
 pytest.importorskip("pytetwild")
 
 
+@pytest.mark.slow  # fTetWild + a field job: 9 s warm (tests/mesh/test_tetwild_obstacles.py keeps obstacles fast)
 def test_closed_obstacle_job_reflects_and_loses_nothing(tmp_path):
     box = trimesh.creation.box(extents=(10.0, 10.0, 10.0))
     box.apply_translation((25.0, 0.0, 5.5))  # front face at x = 20, 0.5 m above the ground (strictly inside)
@@ -72,6 +73,7 @@ def test_closed_obstacle_job_reflects_and_loses_nothing(tmp_path):
     )
 
 
+@pytest.mark.slow  # fTetWild + a field job: 19 s warm
 def test_obstacle_material_reaches_the_obstacle_faces(tmp_path):
     from pydantic import ValidationError
 

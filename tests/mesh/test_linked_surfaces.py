@@ -224,6 +224,7 @@ def _lp_overlap(tet: np.ndarray, tri: np.ndarray) -> bool:
     return res.status == 0
 
 
+@pytest.mark.slow  # brute-force LP per pair: 11 s warm
 def test_link_table_matches_brute_force_overlap():
     rng = np.random.default_rng(11)
     pts = rng.uniform(0.0, 1.0, (40, 3))

@@ -175,6 +175,7 @@ def test_no_cell_inside_the_sphere(sphere_mesh, sphere_obstacle):
     assert depth.min() >= -sphere_mesh.stats["surface_deviation_m"]["max"]
 
 
+@pytest.mark.slow  # brute-force distances: 12 s warm (+6 s sphere fixture)
 def test_surface_deviation_matches_brute_force(sphere_mesh, sphere_obstacle):
     tm = sphere_mesh
     c, f = np.nonzero(tm.cells.neighbours == BOUNDARY_REFLECT)

@@ -255,6 +255,7 @@ def test_same_field_and_rays_as_local_with_progress_per_batch(client, local_runs
     _assert_same(local, other, rtol=FIELD_RTOL)
 
 
+@pytest.mark.slow  # 11 s warm (+8 s of its own local runs)
 def test_many_sources_fan_out_as_separate_tasks(client):
     # 200 sources x 6 rays: one batch per source (ranges never straddle sources), every ray counted
     xs = np.linspace(0.0, 200.0, 200)
@@ -297,12 +298,20 @@ def test_worker_killed_mid_job_is_rescheduled(client, local_runs):
     )
 
 
-def test_scheduler_from_the_environment(client, local_runs, monkeypatch, tmp_path):
+def test_scheduler_address_is_read_by_the_cli_and_the_service_settings(monkeypatch):
     # the engine reads no configuration: the CLI (and the service settings) turn the variable into an executor
-    monkeypatch.setenv("BENTRAY_DASK_SCHEDULER", client.scheduler.address)
-    assert dask_address(None) == client.scheduler.address
+    monkeypatch.setenv("BENTRAY_DASK_SCHEDULER", "tcp://from-env:8786")
+    assert dask_address(None) == "tcp://from-env:8786"
     assert dask_address(" tcp://elsewhere:1 ") == "tcp://elsewhere:1"  # the flag wins
-    assert Settings.from_env().dask_scheduler == client.scheduler.address
+    assert Settings.from_env().dask_scheduler == "tcp://from-env:8786"
+    monkeypatch.setenv("BENTRAY_DASK_SCHEDULER", "  ")
+    assert dask_address(None) is None and Settings.from_env().dask_scheduler is None
+    monkeypatch.delenv("BENTRAY_DASK_SCHEDULER")
+    assert dask_address(None) is None and Settings.from_env().dask_scheduler is None
+
+
+def test_scheduler_from_the_environment(client, local_runs, monkeypatch, tmp_path):
+    monkeypatch.setenv("BENTRAY_DASK_SCHEDULER", client.scheduler.address)
     assert run_job(_job("incoherent", batch_rays=100)).report["batches"]["executor"] == "local"
     outcome = run_job(_job("incoherent", batch_rays=100), executor=make_executor(dask_address(None)))
     assert outcome.report["batches"]["executor"] == "dask"
@@ -312,9 +321,6 @@ def test_scheduler_from_the_environment(client, local_runs, monkeypatch, tmp_pat
     assert main(["run", str(job_path), "--out", str(tmp_path / "run")]) == 0  # no --dask: the variable
     report = json.loads((tmp_path / "run" / "report.json").read_text(encoding="utf-8"))
     assert report["batches"]["executor"] == "dask"
-    monkeypatch.delenv("BENTRAY_DASK_SCHEDULER")
-    assert dask_address(None) is None
-    assert Settings.from_env().dask_scheduler is None
 
 
 def test_run_and_sweep_commands_on_the_cluster(client, tmp_path, capsys):

@@ -157,6 +157,7 @@ def test_dead_job_process_is_retried_once_then_failed_with_reason(server):
     store.close()
 
 
+@pytest.mark.slow  # 30 s warm; the dead-job-process retry and cancel tests stay fast
 def test_restart_after_sigkill_recovers_jobs(tmp_path, warm_kernels):
     data = tmp_path / "data"
     srv = ServerProcess(data, workers=1).start()
