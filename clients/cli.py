@@ -310,7 +310,7 @@ def _add_service_verbs(sub: argparse._SubParsersAction[argparse.ArgumentParser])
 COMMANDS.append(_add_service_verbs)
 
 
-def _add_export(sub: argparse._SubParsersAction) -> None:
+def _add_export(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     from bentray.clients.export_cli import add_export  # bentray export (GeoTIFF, isophones, facades, ...)
 
     add_export(sub)

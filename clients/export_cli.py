@@ -151,7 +151,7 @@ def _write_receivers(args: argparse.Namespace, grid: Any, out: Path) -> list[Pat
             raise CommandError("--height needs the ground: --ground-z or --terrain")
         gz = np.asarray(ground(p[flat, :2]), dtype=np.float64) if callable(ground) else float(ground)
         p[flat, 2] = gz + float(args.height)
-    levels = {
+    levels: dict[str, Any] = {
         args.array: facades.levels_at_points(grid.level(args.array), grid.origin, grid.spacing, grid.frame.to_local(p))
     }
     crs = grid.frame.crs_wkt
@@ -238,7 +238,7 @@ def _write(
         else None
     )
     if fmt == "facades":
-        cols = {args.array: rec_levels}
+        cols: dict[str, Any] = {args.array: rec_levels}
         extra = {"building": receivers.building, "storey": receivers.storey}
         feats = facades.points_features(receivers.points, receivers.ids, cols, extra)
         return [
@@ -257,6 +257,7 @@ def _write(
             for fp in footprints:
                 inside |= points_in_polygon(footprint_polygon(fp), xy)
             inside = inside.reshape(grid.shape[:2])
+            assert rec_levels is not None
             per_building = exposure.building_levels(rec_levels, receivers.building, len(footprints))
             result["buildings"] = exposure.buildings_by_class(per_building, levels)
         result["area"] = exposure.area_by_class(lmap.level, lmap.dxy, levels, exclude=inside)

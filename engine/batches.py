@@ -101,7 +101,7 @@ def combine_batches(
         field_sum = parts[0].field
         for b in parts[1:]:
             if b.field is not None:  # None: already summed, in batch order, into an earlier one (InOrderSum)
-                field_sum.add(b.field)
+                field_sum.add(b.field)  # type: ignore[arg-type]  # batches of one job share one kind
     restarts = None
     if parts[0].restarts is not None:
         restarts = np.concatenate([b.restarts for b in parts if b.restarts is not None])
@@ -135,5 +135,5 @@ class InOrderSum:
                 self._head = ready
             else:
                 assert self._head.field is not None and ready.field is not None
-                self._head.field.add(ready.field)
+                self._head.field.add(ready.field)  # type: ignore[arg-type]  # one kind per job
                 ready.field = None

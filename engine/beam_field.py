@@ -185,6 +185,7 @@ class BeamBuffers:
         power = self.weights[0] if self.weights.shape[0] else np.zeros(n_f)
         powered = np.any(power > 0)
         if self.grid is not None:
+            grid = self.grid
             p_g, e_g, weight = _normalised(self.acc, self.bgrid.n_refl, self.bgrid.mode)
             p = None
             energy = None
@@ -199,7 +200,7 @@ class BeamBuffers:
                 pair = min(2, self.bgrid.n_refl) * N_KMAH
                 p = p_g[:pair].sum(axis=0)
                 energy = e_g[pair:].sum(axis=0)
-            rel = np.zeros((n_f, self.grid.n_points))
+            rel = np.zeros((n_f, grid.n_points))
             if p is not None:
                 rel += np.abs(p) ** 2
             if energy is not None:
@@ -304,7 +305,7 @@ def beam_tables(
     frequencies_hz: np.ndarray, materials: list[float | None], alpha: np.ndarray, chord_m: float, sound_speed: float
 ) -> BeamTables:
     """Complex ground table per (material, band), absorption per band (1/m) and the chord length (m)."""
-    q = build_q_table(np.asarray(frequencies_hz, float), materials, c=sound_speed)
+    q = build_q_table([float(f) for f in np.asarray(frequencies_hz, float)], materials, c=sound_speed)
     return BeamTables(q.table, q.grid, np.asarray(alpha, float), float(chord_m))
 
 
@@ -378,7 +379,11 @@ def prepare(
         raise ValueError(f"the mesh's faces use {n_face_materials} materials but the ground table has {len(materials)}")
     settings = spec if spec is not None else receiver_settings(receiver_bands)
     grid = (
-        FieldGrid(np.asarray(spec.origin, float), np.asarray(spec.spacing, float), tuple(spec.shape))
+        FieldGrid(
+            np.asarray(spec.origin, float),
+            np.asarray(spec.spacing, float),
+            (int(spec.shape[0]), int(spec.shape[1]), int(spec.shape[2])),
+        )
         if spec is not None
         else None
     )
@@ -497,6 +502,8 @@ def finalize(spec: FieldSpec, buffers: BeamBuffers) -> FieldArrays:
     if col is None:
         raise ValueError("finalize() needs the collapsed field of all batches")
     grid = buffers.grid
+    if grid is None:
+        raise ValueError("finalize() needs a field grid (this job has receivers only)")
     labels = spec.labels
     rel = np.zeros((len(labels), grid.n_points))
     arrays: dict[str, np.ndarray] = {}
@@ -542,8 +549,10 @@ def finalize(spec: FieldSpec, buffers: BeamBuffers) -> FieldArrays:
         "method": "geometric (hat) beams around paraxial rays, normalised per arrival group",
         "mode": spec.mode,
         "frequencies_hz": [float(f) for f in spec.frequencies_hz],
-        "absorption": f"ISO 9613-1 at {spec.temperature_c:g} C, {spec.humidity_percent:g} %RH, {spec.pressure_kpa:g} kPa"
-        if spec.absorption
-        else "none",
+        "absorption": (
+            f"ISO 9613-1 at {spec.temperature_c:g} C, {spec.humidity_percent:g} %RH, {spec.pressure_kpa:g} kPa"
+            if spec.absorption
+            else "none"
+        ),
     }
     return FieldArrays(grid=grid, arrays=arrays, field_data=field_data, stats=stats)

@@ -123,7 +123,7 @@ class FieldBuffers:
     def kernel_tuple(self) -> FieldAcc:
         """The kernels' view of these accumulators (kernels.field.FieldAcc; arrays shared, not copied)."""
         return FieldAcc(
-            np.int64(self.code),
+            np.int64(self.code),  # type: ignore[arg-type]  # an int64 in both constructors: one numba type
             self.fgeo,
             self.fshape,
             self.alpha,
@@ -211,7 +211,7 @@ def no_field_tuple(n_rays: int) -> tuple[FieldAcc, np.ndarray]:
     """A FIELD_OFF FieldAcc with minimal dummy arrays (the same types as a real one), and (n_rays, 0) weights."""
     z3 = np.zeros((1, 1, 1))
     fld = FieldAcc(
-        np.int64(FIELD_OFF),
+        np.int64(FIELD_OFF),  # type: ignore[arg-type]  # an int64 in both constructors: one numba type
         np.zeros(FGEO_SIZE),
         np.ones(3, dtype=np.int64),
         np.zeros(0),

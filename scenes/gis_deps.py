@@ -17,7 +17,7 @@ GIS_EXTRA = "gis"
 _PIP_NAME = {"shapely": "shapely", "pyproj": "pyproj", "rasterio": "rasterio", "contourpy": "contourpy"}
 
 
-class GisDependencyError(BentrayError, ImportError):  # type: ignore[misc]
+class GisDependencyError(BentrayError, ImportError):
     """A package of the ``gis`` extra is not installed."""
 
 

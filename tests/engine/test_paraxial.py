@@ -58,7 +58,9 @@ def _media(job: Job):
     if surfaces is not None:
         media = build_terrain_media(profile, "parabolic", job.solver, lo, hi, surfaces, top=job.scene.top.kind)
     else:
-        media = build_media(profile, "parabolic", job.solver, lo, hi, ground="reflect", top=job.scene.top.kind, wind=wind)
+        media = build_media(
+            profile, "parabolic", job.solver, lo, hi, ground="reflect", top=job.scene.top.kind, wind=wind
+        )
     return media, profile, wind
 
 
@@ -152,8 +154,15 @@ def test_paraxial_homogeneous_is_the_spherical_spreading():
     az = np.radians(np.array([0.0, 30.0, -60.0]))
     src = np.array([0.0, 0.0, 2.0])
     res = trace(
-        media.mesh, "parabolic", 340.0, np.repeat(src[None], 3, 0), _directions(el, az),
-        np.full(3, media.locate(src[None])[0]), max_time_s=30.0, max_reflections=0, paraxial=True,
+        media.mesh,
+        "parabolic",
+        340.0,
+        np.repeat(src[None], 3, 0),
+        _directions(el, az),
+        np.full(3, media.locate(src[None])[0]),
+        max_time_s=30.0,
+        max_reflections=0,
+        paraxial=True,
     )
     r = np.linalg.norm(res.position - src, axis=1)
     x_el = res.paraxial[:, 0:3]
