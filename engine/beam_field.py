@@ -92,7 +92,9 @@ def _normalised(acc: BeamAcc, n_refl: int, mode: int) -> tuple[np.ndarray | None
     BEAM_SEMICOHERENT storage (receivers) returns the coherent sum over all groups *and* the energy sum over
     all groups; the field's semicoherent mode is formed by the caller from the split returned here."""
     weight = acc.weight.sum(axis=0)  # (G, V)
-    norm = 1.0 / np.maximum(weight, W_FLOOR)
+    # a deficit (0.5 <= W < 1: neighbours already reflected) is repaired, below 0.5 the field fades; W > 1
+    # (overlapping bundles: facets of a terrain, widths floored at a caustic) is a sum of arrivals, kept
+    norm = 1.0 / np.clip(weight, W_FLOOR, 1.0)
     p = None
     energy = None
     if mode != BEAM_INCOHERENT:

@@ -77,8 +77,16 @@ def advanced_copy(par, sigma, out):
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
-def onto_face(par, plane, p, g):
-    """Derivatives on the face plane (m, h) reached with slowness vector p: see the module docstring."""
+def onto_face(par, plane, p, g, max_dsig):
+    """Derivatives on the face plane (m, h) reached with slowness vector p: see the module docstring.
+
+    max_dsig : bound on |d sigma_k| (inf: exact). A ray that crosses a face between two cells nearly
+    tangentially has |m.p| -> 0 and d sigma_k -> inf: the exact derivative of the piecewise-linear medium
+    there is a kick (g_old - g_new)/2 d sigma_k that the continuous medium does not have (it flips tubes:
+    spurious caustics, measured on terrain-following tets). Internal faces bound it by the cell size / n
+    (the neighbouring ray cannot spend longer than one cell in the other cell's gradient); reflecting
+    faces use the exact value.
+    """
     mp = plane[0] * p[0] + plane[1] * p[1] + plane[2] * p[2]
     if mp == 0.0:
         return
@@ -86,6 +94,10 @@ def onto_face(par, plane, p, g):
         o = 3 * k
         mx = plane[0] * par[o] + plane[1] * par[o + 1] + plane[2] * par[o + 2]
         dsig = -mx / mp
+        if dsig > max_dsig:
+            dsig = max_dsig
+        elif dsig < -max_dsig:
+            dsig = -max_dsig
         for i in range(3):
             par[o + i] += p[i] * dsig
             par[6 + o + i] += 0.5 * g[i] * dsig
