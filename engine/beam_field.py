@@ -416,7 +416,11 @@ def prepare(
         weights = np.ascontiguousarray(source_powers_w[np.asarray(source_index)], float)
     else:
         weights = np.zeros((n_rays, freqs.size))
-    return BeamBuffers(settings.mode, grid, bgrid, tables, weights, 0, bgrid._replace(mode=BEAM_SEMICOHERENT), points)
+    buffers = BeamBuffers(
+        settings.mode, grid, bgrid, tables, weights, 0, bgrid._replace(mode=BEAM_SEMICOHERENT), points
+    )
+    buffers.settings = settings
+    return buffers
 
 
 def receiver_settings(frequencies_hz: list[float] | None = None) -> FieldSpec:

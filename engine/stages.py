@@ -344,8 +344,6 @@ def stage_field_setup(
         materials = _materials(job, surfaces)
         if job.scene.ground.flow_resistivity is not None and not job.scene.has_surfaces:
             mesh = field_stage.tag_ground_material(mesh, float(job.scene.box.min[2]), field_stage.GROUND_MATERIAL)
-        per_source = field_stage.launch_solid_angles(job.rays.elevation_deg.values(), job.rays.azimuth_deg.values())
-        weights = np.tile(per_source, len(job.sources))
         lo = job.scene.box.min
         ground_point = np.array([[job.sources[0].position[0], job.sources[0].position[1], lo[2]]])
         powers = None
@@ -376,6 +374,9 @@ def stage_field_setup(
                 receiver_bands=receiver_bands,
             )
             return FieldSetup(mesh, beam_template, powers, materials, receivers_xyz)
+        # voxels: each ray carries the power of its launch solid angle (a 3D fan)
+        per_source = field_stage.launch_solid_angles(job.rays.elevation_deg.values(), job.rays.azimuth_deg.values())
+        weights = np.tile(per_source, len(job.sources))
         buffers = field_stage.prepare(
             spec,
             ray_weights=weights,

@@ -599,11 +599,7 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
             paraxial.advance(par, param)
             p_norm = _p_at(cs, param, p_end)
             if face >= 0:
-                # internal faces: the kick of a nearly tangential crossing is bounded (paraxial.onto_face)
-                nxt_cell = neighbours[cell, face]
-                paraxial.onto_face(
-                    par, planes[cell, face], p_end, g, size[cell] / p_norm if nxt_cell >= 0 else math.inf
-                )
+                paraxial.onto_face(par, planes[cell, face], p_end, g, math.inf)
                 if deposit_on and (neighbours[cell, face] < 0 or s + ds - bray.last[beams.S_ARC] >= beam.tabs.chord_m):
                     beams.ray_sample(beam, acc, bray, xn, dn, t + dt, s + ds, p_norm / c_ref, par, reflections,
                                      refl_cos, refl_mat, launch_cos, False)  # fmt: skip
