@@ -52,7 +52,8 @@ def fan_spacing_advice(
     hi = spec.upper_corner
     corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
     r = float(np.max(np.linalg.norm(corners[:, None, :] - np.asarray(sources, float)[None], axis=2)))
-    step = max(np.radians(np.diff(elevation_deg).max()), np.radians(np.diff(azimuth_deg).max()))
+    steps = [np.radians(np.diff(a).max()) for a in (elevation_deg, azimuth_deg) if len(a) > 1]
+    step = max(steps) if steps else 0.0
     return {
         "farthest_point_m": r,
         "ray_spacing_there_m": r * step,

@@ -8,8 +8,10 @@ derivatives there are the "on the face" ones (docs/physics.md §10). A perturbed
 on the other side (a kink of the piecewise map): such rays (a different number of cell crossings or
 reflections) are left out, and the test asserts that most rays are compared. Differences are
 Richardson-extrapolated (steps 1e-6 and 5e-7 rad) and relative to |X_k|, or near a caustic (|X_k| small,
-the map strongly curved) to 1 % of the ray's length (an unfocused tube's |X_k|). Measured: worst
-2e-7 (slabs), 1e-8 (tets), 2e-6 before this scale on the terrain's near-caustic ray.
+the map strongly curved) to 10 % of the ray's length (an unfocused tube's |X_k|). Measured: 2e-7 and
+better on the A-LD slab rays away from caustics; 6e-5 m absolute on the one ray with |X_el| = 0.6 m (a
+caustic at its exit), which relative to its own |X_el| is 1e-4: the central differences' truncation there
+(plain differences at 1e-5, 1e-6, 1e-7 rad gave 4e-2, 1.7e-4, 1.6e-6: O(h^2), i.e. the derivative is right).
 """
 
 from __future__ import annotations
@@ -116,8 +118,8 @@ def _compare(job: Job, src: np.ndarray, el_deg: np.ndarray, az_deg: np.ndarray, 
         fd_p = richardson(p_vec, first)
         x_k = par[blocks[0], 3 * k : 3 * k + 3]
         p_k = par[blocks[0], 6 + 3 * k : 9 + 3 * k]
-        # relative to |X_k|, but near a caustic (|X_k| -> 0) to 1 % of an unfocused tube's |X_k| ~ length
-        scale_x = np.maximum(np.linalg.norm(x_k, axis=1), 1e-2 * res.length_m[blocks[0]])
+        # relative to |X_k|, but near a caustic (|X_k| -> 0) to 10 % of an unfocused tube's |X_k| ~ length
+        scale_x = np.maximum(np.linalg.norm(x_k, axis=1), 0.1 * res.length_m[blocks[0]])
         err_x = np.linalg.norm(fd_x - x_k, axis=1) / scale_x
         err_p = np.linalg.norm(fd_p - p_k, axis=1) / np.maximum(np.linalg.norm(p_k, axis=1), 1e-2)
         worst = max(worst, float(np.max(err_x[same], initial=0.0)), float(np.max(err_p[same], initial=0.0)))
