@@ -221,6 +221,11 @@ def test_speed_and_read_out() -> None:
     one = gfpe_tl(prof, 500.0, 2.0, [777.7], [2.25, 1.5], SIGMA, z_top=300.0)
     assert one[0, ::-1] == pytest.approx(tl[2], abs=1e-9)
     assert tl.shape == (3, 2) and np.all(np.isfinite(tl))
+    # many receivers: the blocked read-out gives the same numbers
+    zz = np.linspace(0.5, 20.0, 700)
+    big = gfpe_tl(prof, 500.0, 2.0, [333.3], zz, SIGMA, z_top=300.0)
+    small = gfpe_tl(prof, 500.0, 2.0, [333.3], zz[::100], SIGMA, z_top=300.0)
+    assert big[0, ::100] == pytest.approx(small[0], abs=1e-9)
 
 
 def test_bad_input() -> None:
@@ -228,6 +233,10 @@ def test_bad_input() -> None:
         gfpe_tl(homogeneous(), 100.0, 0.0, [10.0], [1.0])
     with pytest.raises(ValueError, match="z_top"):
         gfpe_tl(homogeneous(), 100.0, 2.0, [10.0], [500.0], z_top=100.0)
+    with pytest.raises(ValueError, match="Im Z"):
+        gfpe_tl(homogeneous(), 100.0, 2.0, [10.0], [1.0], impedance=10.0 + 0j)
+    with pytest.raises(ValueError, match="profile_c"):
+        gfpe_tl(lambda z: -np.ones_like(z), 100.0, 2.0, [10.0], [1.0])
     with pytest.raises(ValueError, match="starter"):
         gfpe_tl(homogeneous(), 100.0, 2.0, [10.0], [1.0], starter="parabolic")
 
