@@ -172,9 +172,10 @@ def test_refraction_log_profile(f_hz: float, sigma: float | None) -> None:
     Measured: rigid 100 Hz homogeneous +7.0, downward (b = +1) +18.1, upward (b = -1) -27.0;
     rigid 500 Hz +7.0 / +14.6 / -101 (500 Hz upward: at the absorbing-layer floor, see gfpe.py);
     grass 100 Hz +1.9 / -3.3 / -20.8; grass 500 Hz -22.6 / -1.0 / -105.
-    Downward refraction is louder than homogeneous air except over grass at 100 Hz (-5 dB: the
-    trapped grazing waves lose energy at each ground contact; robust to steps, c_ref, starter and
-    domain height within 0.3 dB), upward refraction casts a shadow (>= 20 dB below homogeneous).
+    Downward refraction is louder than homogeneous air except over grass at 100 Hz (-5 dB with this
+    strong near-ground gradient, 1 1/s at z = 0; robust to steps, c_ref, starter and domain height within
+    0.3 dB; not checked by an independent solution: the normal-mode cases over grass, with a weaker
+    linear gradient, are 3.9 dB louder), upward refraction casts a shadow (>= 20 dB below homogeneous).
     """
     hom = _mean_level(_gfpe(f_hz, 2.0, sigma))
     down = _mean_level(_gfpe(f_hz, 2.0, sigma, 1.0))
