@@ -29,7 +29,7 @@ from pydantic import (
 from pydantic_core import PydanticCustomError
 
 from bentray.engine.errors import BentrayError
-from bentray.scenes.bounds import MAX_LENGTH_M, MIN_LENGTH_M, Vec2, Vec3
+from bentray.scenes.bounds import MAX_LENGTH_M, MIN_LENGTH_M, Coord, Vec3
 from bentray.scenes.crs import crs_errors
 from bentray.scenes.field_models import MAX_COHERENT_FIELD_POINTS, FieldSpec
 from bentray.scenes.ground_zones import GroundZonesSpec
@@ -271,7 +271,7 @@ class Source(_Model):
     ``position`` [x, y, z] (absolute z, metres) or [x, y] with ``height_above_ground_m`` (exactly one of the
     two; the z is resolved against the terrain, or the flat ground, when the job is prepared)."""
 
-    position: Vec3 | Vec2
+    position: tuple[Coord, ...] = Field(min_length=2, max_length=3)  # [x, y, z] or [x, y]
     height_above_ground_m: float | None = Field(default=None, gt=0, lt=10_000)
     power_db: dict[str, Annotated[float, Field(ge=-MAX_POWER_DB, le=MAX_POWER_DB)]] | None = Field(
         default=None, max_length=64

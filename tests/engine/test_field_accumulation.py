@@ -55,6 +55,7 @@ def _cube(freqs=(500.0,), absorption=False, **extra) -> dict:
         "shape": [41, 41, 41],
         "frequencies_hz": list(freqs),
         "absorption": absorption,
+        "method": "voxels",  # these tests check the voxel accumulator (energy per voxel, ray hits)
         **extra,
     }
 
@@ -115,6 +116,7 @@ def test_absorbed_energy_matches_the_closed_form(monkeypatch) -> None:
 
 def test_spl_is_power_level_minus_tl_and_sources_add(monkeypatch) -> None:
     field = {
+        "method": "voxels",
         "origin": [-10.0, -10.0, 20.0],
         "spacing": [2.0, 2.0, 2.0],
         "shape": [11, 11, 11],
@@ -164,6 +166,7 @@ def test_downward_refraction_fills_the_upward_shadow() -> None:
     geometric shadow: no ray passes there, so ray acoustics gives no level (diffraction and turbulence
     scattering, which set real shadow levels, are not modelled: the report says so)."""
     field = {
+        "method": "voxels",
         "origin": [50.0, 0.0, 4.0],
         "spacing": [10.0, 2.0, 2.0],
         "shape": [96, 1, 1],

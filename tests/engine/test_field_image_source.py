@@ -60,6 +60,7 @@ def _job(line: str, mode: str, sigma: float | None) -> Job:
                 "frequencies_hz": list(FREQS),
                 "absorption": False,
                 "mode": mode,
+                "method": "voxels",  # the voxel accumulator (beams: one batch per source)
             },
             "outputs": ["field", "report"],
         }

@@ -68,6 +68,7 @@ def _spec(
             "shape": [25, 5, 3],
             "frequencies_hz": [125, 1000],
             "mode": mode,
+            "method": "voxels",  # the voxel accumulator (beams: one batch per source)
         },
         "outputs": ["rays", "field", "report"],
     }
