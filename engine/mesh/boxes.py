@@ -1,14 +1,14 @@
 """Axis-aligned box overlap candidates for the mesh builders and mesh checks (plain numpy, no scene schema).
 
-The engine's copy of the bucketed overlap search (``scenes.geometry`` keeps the scene-input one): the
-linked-surface link table and the closed-surface checks of obstacle meshes use it. World frame, metres.
+The one bucketed overlap search: the linked-surface link table, the closed-surface checks of obstacle
+meshes and the scene checks (``scenes.geometry`` re-exports it) use it. World frame, metres.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["GEOMETRY_REL_TOL", "MAX_CANDIDATE_PAIRS", "CandidateLimitError", "box_pairs"]
+__all__ = ["GEOMETRY_REL_TOL", "MAX_BOX_COORDINATE", "MAX_CANDIDATE_PAIRS", "CandidateLimitError", "box_pairs"]
 
 # Orientation and containment tests treat anything within GEOMETRY_REL_TOL x (scene size) of a line or
 # plane as "on" it: 1e-9 of a 2 km scene is 2 micrometres, far below any survey accuracy and far above
@@ -19,6 +19,9 @@ GEOMETRY_REL_TOL = 1e-9
 MAX_CANDIDATE_PAIRS = 20_000_000
 # Grid cells per axis of the bucketing grid (keys stay inside int64 in 3D).
 _MAX_CELLS_PER_AXIS = 1 << 16
+# Box coordinates beyond this are refused: differences and squares of coordinates up to 1e150 stay finite
+# (a 1e308 coordinate made the extent overflow to inf and the cell-size loop spin on NaN forever).
+MAX_BOX_COORDINATE = 1e150
 
 
 class CandidateLimitError(ValueError):
@@ -52,12 +55,16 @@ def box_pairs(
     lo_a, hi_a : (Na, d) float64, d = 2 or 3; lo_b, hi_b : (Nb, d) or None for a self-join.
     Returns (ia, ib) int64 arrays, unique pairs; for a self-join only ia < ib.
     Uniform-grid bucketing (cell size about the median box size): near-linear for well-shaped inputs.
-    Raises CandidateLimitError beyond MAX_CANDIDATE_PAIRS.
+    Raises CandidateLimitError beyond MAX_CANDIDATE_PAIRS and ValueError for a coordinate that is not finite
+    or beyond MAX_BOX_COORDINATE in magnitude.
     """
     self_join = lo_b is None or hi_b is None
     if self_join:
         lo_b, hi_b = lo_a, hi_a
     assert lo_b is not None and hi_b is not None
+    for arr in (lo_a, hi_a, lo_b, hi_b):
+        if arr.size and not (np.all(np.isfinite(arr)) and np.abs(arr).max() <= MAX_BOX_COORDINATE):
+            raise ValueError(f"box coordinates must be finite and at most {MAX_BOX_COORDINATE:g} in magnitude")
     empty = (np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64))
     if lo_a.shape[0] == 0 or lo_b.shape[0] == 0:
         return empty
@@ -74,13 +81,15 @@ def box_pairs(
         1e-300,
     )
     grid_origin = origin - pad
-    while True:
+    for _ in range(4096):  # h doubles each round: finite inputs break out long before h overflows
         dims = np.floor((top + pad - grid_origin) / h).astype(np.int64) + 1
         span_a = np.prod(np.floor((hi_a - lo_a) / h) + 2, axis=1).sum()
         span_b = np.prod(np.floor((hi_b - lo_b) / h) + 2, axis=1).sum()
         if span_a + span_b <= 16 * n_boxes + 64:
             break
         h *= 2.0  # a few huge boxes would otherwise register in very many cells
+    else:
+        raise ValueError("box_pairs: no cell size fits the boxes (non-finite extent)")
     box_a, key_a = _registrations(lo_a, hi_a, grid_origin, h, dims)
     box_b, key_b = _registrations(lo_b, hi_b, grid_origin, h, dims)
     order_b = np.argsort(key_b, kind="stable")
