@@ -88,6 +88,7 @@ class JobOutcome:
     report: dict[str, Any]
     field: Any | None = None  # engine.field.FieldArrays when the job asked for a field
     receivers: Any | None = None  # engine.beam_field.ReceiverTable when the job lists receivers
+    arrivals: Any | None = None  # engine.eigenray_stage.ArrivalTable when the eigenray search ran
 
 
 def concat_traces(parts: list[TraceResult]) -> TraceResult:

@@ -11,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from bentray.engine import stages
+from bentray.engine.eigenray_stage import merge_into_receivers
 from bentray.engine.executors import Executor, LocalExecutor
 from bentray.engine.report import build_report
 from bentray.engine.result import JobOutcome
@@ -24,6 +25,13 @@ __all__ = ["ProgressFn", "run_job"]
 
 def _no_progress(stage: str, fraction: float) -> None:
     return None
+
+
+def _band_labels(job: Job, setup: stages.FieldSetup) -> list[str]:
+    """The receivers' band labels (those of receivers.csv): the field's, or the receiver defaults."""
+    template = setup.template
+    settings = getattr(template, "settings", None) or job.field
+    return list(settings.labels) if settings is not None else []
 
 
 def run_job(
@@ -60,6 +68,10 @@ def run_job(
     report_progress("field", 0.9)
     field_arrays = stages.stage_field(job, profile, surfaces, traced, setup, log)
     receivers = stages.stage_receivers(job, traced, setup, log)
+    report_progress("eigenrays", 0.93)
+    arrivals = stages.stage_eigenrays(job, profile, wind, setup, start_cells, fan, log)
+    if receivers is not None and arrivals is not None:
+        merge_into_receivers(receivers, arrivals, list(_band_labels(job, setup)))
     geometry = stages.stage_mesh_output(job, media, log)
     report = build_report(
         job,
@@ -74,9 +86,16 @@ def run_job(
     )
     if receivers is not None:
         report["receivers"] = receivers.stats
+    if arrivals is not None:
+        report["eigenrays"] = arrivals.stats
     if frame.crs_wkt is not None:
         report["georeference"] = frame.as_dict()  # bentray export places the outputs back in the CRS
     report_progress("done", 1.0)
     return JobOutcome(
-        trace=traced.result, mesh_geometry=geometry, report=report, field=field_arrays, receivers=receivers
+        trace=traced.result,
+        mesh_geometry=geometry,
+        report=report,
+        field=field_arrays,
+        receivers=receivers,
+        arrivals=arrivals,
     )

@@ -18,6 +18,8 @@ import numpy as np
 from bentray.engine import beam_field
 from bentray.engine import field as field_stage
 from bentray.engine.constants import CURVE_QUANTITY
+from bentray.engine.eigenray_stage import ArrivalTable, eigenray_decision, run_eigenrays
+from bentray.engine.eigenrays import RayModel
 from bentray.engine.errors import JobInputError
 from bentray.engine.executors import Executor
 from bentray.engine.field_buffers import FieldBuffers
@@ -48,6 +50,7 @@ __all__ = [
     "launch_fan",
     "load_surfaces",
     "stage_field",
+    "stage_eigenrays",
     "stage_field_setup",
     "stage_locate",
     "stage_mesh",
@@ -556,6 +559,46 @@ def stage_receivers(job: Job, traced: Traced, setup: FieldSetup, log: StageLog) 
     log.stages["receivers"] = (
         f"ran: {len(job.receivers)} receivers, coherent and incoherent levels from the beams "
         f"({table.stats['without_beams']} reached by no beam)"
+    )
+    return table
+
+
+def stage_eigenrays(
+    job: Job, profile: Profile, wind: Wind | None, setup: FieldSetup, start_cells: np.ndarray, fan: LaunchFan,
+    log: StageLog,
+) -> ArrivalTable | None:
+    """Eigenrays at the job's receivers (arrivals.csv): see :mod:`bentray.engine.eigenray_stage`."""
+    why_not = eigenray_decision(job)
+    if why_not is not None or setup.receivers_xyz is None:
+        log.stages["eigenrays"] = why_not or "skipped: no receivers in the job"
+        return None
+    template = setup.template
+    tables = template.tables if isinstance(template, beam_field.BeamBuffers) else None
+    settings = template.settings if isinstance(template, beam_field.BeamBuffers) else None
+    freqs = np.asarray(settings.frequencies_hz if settings is not None else [], float)
+    models = []
+    for s, src in enumerate(job.sources):
+        first = int(np.nonzero(fan.source == s)[0][0])
+        models.append(
+            RayModel(
+                mesh=setup.mesh,
+                curve=job.solver.mesh_curve,
+                c_ref=float(profile.c_ref),
+                origin=np.asarray(src.position, float),
+                start_cell=int(start_cells[first]),
+                max_reflections=job.rays.max_reflections,
+                max_steps=job.rays.max_steps,
+                wind=wind,
+                tables=tables,
+                frequencies_hz=freqs,
+            )
+        )
+    with log.timed("eigenrays"):
+        table = run_eigenrays(job, models, setup.receivers_xyz, freqs)
+    st = table.stats
+    log.stages["eigenrays"] = (
+        f"ran: {st['arrivals']} arrivals at {st['receivers']} receivers from {st['sources']} sources "
+        f"({len(st['not_converged'])} receivers with brackets that did not converge; {st['method']})"
     )
     return table
 

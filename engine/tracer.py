@@ -66,6 +66,7 @@ def trace(
     field: FieldBuffers | BeamBuffers | None = None,
     wind: tuple[int, np.ndarray] | None = None,
     paraxial: bool = False,
+    record_reflections: bool = False,
 ) -> TraceResult:
     """Trace rays through ``mesh`` with the given curve kind.
 
@@ -78,6 +79,8 @@ def trace(
         kernel). With wind each ray traces the effective medium c + u(x) . e, e its unit horizontal launch
         azimuth (physics.md section 7); ``mesh`` carries c alone (no per-cell wind arrays).
     field may also be a beam_field.BeamBuffers (beam fields; parabolic curve only).
+    record_reflections : return each ray's first reflections (incidence cosine, face material) even
+        without a field (eigenray amplitudes; any curve).
     paraxial : also return each ray's final paraxial state (TraceResult.paraxial, (n, 13): X_el, X_az,
         P_el, P_az, |p|; parabolic curve only; docs/physics.md §10).
     Returns a TraceResult with launch angles left at NaN (the caller fills them in).
@@ -112,7 +115,7 @@ def trace(
     else:
         fld, f_weights = no_field_tuple(n)
         n_slots = 4 * int(numba.get_num_threads())
-        refl_cap = 1
+        refl_cap = REFLECTION_RECORD_CAP if record_reflections else 1
     refl_cos = np.zeros((n, refl_cap))
     refl_mat = np.zeros((n, refl_cap), dtype=np.int64)
     prm = RayParams(
@@ -151,7 +154,7 @@ def trace(
         nudges=out_counts[:, COUNT_NUDGES].copy(),
         paths=paths,
         steps=out_counts[:, COUNT_STEPS].copy(),
-        reflection_cos=refl_cos if field is not None else None,
-        reflection_material=refl_mat if field is not None else None,
+        reflection_cos=refl_cos if field is not None or record_reflections else None,
+        reflection_material=refl_mat if field is not None or record_reflections else None,
         paraxial=out_par if paraxial else None,
     )

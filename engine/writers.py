@@ -52,7 +52,16 @@ RAYS_CSV_COLUMNS = (
     "status",
 )
 # Every file name write_outcome may produce (stale ones from an earlier run are removed).
-OUTPUT_FILES = ("rays.csv", "rays.vtp", "mesh.vtu", "field.vti", "preview.png", "receivers.csv", "report.json")
+OUTPUT_FILES = (
+    "rays.csv",
+    "rays.vtp",
+    "mesh.vtu",
+    "field.vti",
+    "preview.png",
+    "receivers.csv",
+    "arrivals.csv",
+    "report.json",
+)
 _KNOWN_OUTPUTS = ("rays", "paths", "mesh", "report", "field")
 _CSV_CHUNK_ROWS = 65_536
 _VTK_CELL_TYPES = {"tetra": (10, 4), "hexahedron": (12, 8)}  # name -> (VTK cell type id, points per cell)
@@ -300,7 +309,9 @@ def _write_preview(outcome: JobOutcome, path: Path) -> None:
 
 
 def write_receivers_csv(table: Any, path: str | Path) -> Path:
-    """receivers.csv: one row per receiver, columns of engine.beam_field.ReceiverTable (levels in dB)."""
+    """receivers.csv (engine.beam_field.ReceiverTable, levels in dB) or arrivals.csv
+    (engine.eigenray_stage.ArrivalTable): ``table.columns`` and one dict per row; floats to 6 digits
+    (arrival times are written by the table at full precision)."""
     import csv
 
     path = Path(path)
@@ -334,6 +345,8 @@ def _planned_files(outcome: JobOutcome, outputs: Sequence[str]) -> list[str]:
         files.extend(["field.vti", "preview.png"])
     if outcome.receivers is not None:
         files.append("receivers.csv")  # receivers are listed in the job: their levels are its output
+    if outcome.arrivals is not None:
+        files.append("arrivals.csv")  # the eigenrays at those receivers
     if "report" in outputs:
         files.append("report.json")
     return files
@@ -361,6 +374,7 @@ def write_outcome(outcome: JobOutcome, outputs: Sequence[str], out_dir: str | Pa
         "field.vti": lambda p: _write_field(outcome, p),
         "preview.png": lambda p: _write_preview(outcome, p),
         "receivers.csv": lambda p: write_receivers_csv(outcome.receivers, p),
+        "arrivals.csv": lambda p: write_receivers_csv(outcome.arrivals, p),
     }
     parent = out_dir.absolute().parent
     parent.mkdir(parents=True, exist_ok=True)

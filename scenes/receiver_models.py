@@ -8,6 +8,8 @@ per band, coherent and incoherent, transmission loss and SPL, A-weighted totals.
 
 from __future__ import annotations
 
+from typing import Literal
+
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 MAX_RECEIVERS = 100_000
@@ -45,3 +47,27 @@ class Receiver(BaseModel):
             return (self.position[0], self.position[1])
         assert self.xy is not None
         return self.xy
+
+
+# at most this many (source, receiver) pairs get an eigenray search when ``eigenrays.enabled`` is "auto";
+# "on" allows up to MAX_EIGENRAY_PAIRS (each pair traces a bracket fan of ``elevations`` rays and a few
+# hundred single-ray probes)
+AUTO_EIGENRAY_PAIRS = 200
+MAX_EIGENRAY_PAIRS = 5_000
+
+
+class EigenraySpec(BaseModel):
+    """The ``eigenrays`` key: eigenray search at the receivers (arrivals.csv; docs/physics.md §12).
+
+    enabled : "auto" (search when the job lists receivers and sources x receivers <= AUTO_EIGENRAY_PAIRS),
+    "on" (always, up to MAX_EIGENRAY_PAIRS pairs) or "off". elevations : rays of the vertical bracket fan
+    (elevation step 180 / elevations deg). tolerance_m : convergence, the largest distance at which the
+    eigenray passes the receiver. max_iterations : Newton iterations per bracket.
+    """
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    enabled: Literal["auto", "on", "off"] = "auto"
+    elevations: int = Field(default=721, ge=31, le=20_001)
+    tolerance_m: float = Field(default=1e-8, ge=1e-12, le=1.0)
+    max_iterations: int = Field(default=40, ge=1, le=200)

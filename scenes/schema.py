@@ -35,7 +35,13 @@ from bentray.scenes.field_models import MAX_COHERENT_FIELD_POINTS, FieldSpec
 from bentray.scenes.ground_zones import GroundZonesSpec
 from bentray.scenes.library.registry import BUILTIN_SCENES as _REGISTRY
 from bentray.scenes.profile_models import ProfileSpec
-from bentray.scenes.receiver_models import MAX_RECEIVERS, Receiver
+from bentray.scenes.receiver_models import (
+    AUTO_EIGENRAY_PAIRS,
+    MAX_EIGENRAY_PAIRS,
+    MAX_RECEIVERS,
+    EigenraySpec,
+    Receiver,
+)
 from bentray.scenes.scene_models import BuildingsSpec, MaterialSpec, TerrainSpec, material_reference_errors
 from bentray.scenes.wind_models import WindSpec
 
@@ -476,6 +482,7 @@ class Job(_Model):
     outputs: list[OutputName] = Field(default_factory=lambda: ["rays", "report"], min_length=1, max_length=16)
     field: FieldSpec | None = None
     receivers: list[Receiver] = Field(default_factory=list, max_length=MAX_RECEIVERS)
+    eigenrays: EigenraySpec = Field(default_factory=EigenraySpec)
 
     @field_validator("name")
     @classmethod
@@ -536,6 +543,16 @@ class Job(_Model):
                         None,
                     )
                 )
+        pairs = len(self.receivers) * len(self.sources)
+        if self.eigenrays.enabled == "on" and pairs > MAX_EIGENRAY_PAIRS:
+            errors.append(
+                (
+                    ("eigenrays", "enabled"),
+                    f"an eigenray search for {pairs} source-receiver pairs is over the limit of "
+                    f"{MAX_EIGENRAY_PAIRS}; use 'auto' (searches up to {AUTO_EIGENRAY_PAIRS} pairs) or fewer receivers",
+                    self.eigenrays.enabled,
+                )
+            )
         if self.receivers and self.field is not None and self.field.method != "beams":
             errors.append(
                 (

@@ -37,6 +37,7 @@ MEDIA_TYPES: dict[str, str] = {
     "mesh.vtu": "application/vnd.vtk.unstructuredgrid+xml",
     "rays.csv": "text/csv; charset=utf-8",
     "receivers.csv": "text/csv; charset=utf-8",
+    "arrivals.csv": "text/csv; charset=utf-8",
     "report.json": "application/json",
     "preview.png": "image/png",
 }
