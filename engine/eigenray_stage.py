@@ -119,7 +119,9 @@ def run_eigenrays(
 ) -> ArrivalTable:
     """Search every (source, receiver) pair; models : one RayModel per source (job order)."""
     spec = job.eigenrays
-    settings = SearchSettings(elevations=spec.elevations, tolerance_m=spec.tolerance_m, max_iterations=spec.max_iterations)
+    settings = SearchSettings(
+        elevations=spec.elevations, tolerance_m=spec.tolerance_m, max_iterations=spec.max_iterations
+    )
     freqs = np.asarray(frequencies_hz, float)
     omega = 2.0 * math.pi * freqs
     n_p = receivers_xyz.shape[0]
@@ -136,7 +138,8 @@ def run_eigenrays(
             rows += _rows(rec.id, s, search, freqs)
             counts[i] += len(search.arrivals)
             failures[i] += [
-                f"source {s}: bracket at elevation {fl.elevation_deg:.4g} deg ({fl.reflections} reflections): {fl.reason}"
+                f"source {s}: bracket at elevation {fl.elevation_deg:.4g} deg ({fl.reflections} reflections): "
+                f"{fl.reason}"
                 for fl in search.failures
             ]
         tl_coh[:, i], tl_inc[:, i] = _levels(searches, freqs.size, omega)

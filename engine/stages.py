@@ -564,7 +564,12 @@ def stage_receivers(job: Job, traced: Traced, setup: FieldSetup, log: StageLog) 
 
 
 def stage_eigenrays(
-    job: Job, profile: Profile, wind: Wind | None, setup: FieldSetup, start_cells: np.ndarray, fan: LaunchFan,
+    job: Job,
+    profile: Profile,
+    wind: Wind | None,
+    setup: FieldSetup,
+    start_cells: np.ndarray,
+    fan: LaunchFan,
     log: StageLog,
 ) -> ArrivalTable | None:
     """Eigenrays at the job's receivers (arrivals.csv): see :mod:`bentray.engine.eigenray_stage`."""
