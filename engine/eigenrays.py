@@ -58,6 +58,8 @@ MAX_HALVINGS = 8  # step halvings per Newton iteration before a bracket is given
 DUPLICATE_RAD = 1e-7  # two converged launches closer than this (and with the same reflections) are one ray
 CAUSTIC_SAMPLE_M = 5.0  # spacing (m of arc) of the det[X1, X2, T] samples that count caustics
 MAX_CAUSTIC_SAMPLES = 400
+SUBDIVISIONS = 8  # sub-intervals of a bracket interval that straddles a branch boundary
+MAX_DEPTH = 4  # such splits in a row (8^4: a 0.25 deg fan step resolved to 6e-5 deg)
 
 
 @dataclass(frozen=True)
@@ -363,32 +365,77 @@ def _range_crossings(res, origin: np.ndarray, h0: np.ndarray, rng: float, z_r: f
     return f, t_cross
 
 
-def _brackets(model: RayModel, r: np.ndarray, st: SearchSettings, max_time_s: float) -> list[_Bracket] | str:
+class _Fan(NamedTuple):
+    """A vertical fan at azimuth az: elevations (rad), f = z(R) - z_r (m; NaN: R not reached), times (s)."""
+
+    el: np.ndarray
+    f: np.ndarray
+    t: np.ndarray
+
+
+def _trace_fan(model: RayModel, els: np.ndarray, az: float, r: np.ndarray, st: SearchSettings, max_time_s: float):
     d = r - model.origin
     rng = math.hypot(float(d[0]), float(d[1]))
-    if rng < 1e-6:
+    gammas = np.column_stack([els, np.full(els.size, az)])
+    res = _trace_to(model, gammas, max_time_s, paraxial=False, path_samples=st.path_samples)
+    f, t_cross = _range_crossings(res, model.origin, d[:2] / rng, rng, float(r[2]))
+    return _Fan(els, f, t_cross)
+
+
+def _reflections_at(model: RayModel, fan: _Fan, az: float, idx: np.ndarray) -> dict[int, int]:
+    """Reflection count of fan rays idx at their range-crossing time (one probe each, one thread)."""
+    with _one_thread():
+        return {int(i): probe(model, np.array([fan.el[i], az]), float(fan.t[i])).reflections for i in idx}
+
+
+def _sign_changes(fan: _Fan) -> np.ndarray:
+    ok = np.isfinite(fan.f)
+    return np.nonzero(ok[:-1] & ok[1:] & (np.sign(fan.f[:-1]) != np.sign(fan.f[1:])))[0]
+
+
+def _resolve(model, r, fan: _Fan, az, st, max_time_s, depth, out: list, failures: list) -> None:
+    """Brackets from the sign changes of ``fan``; an interval whose ends differ in reflection count
+    holds a branch boundary next to the root (a ray grazing the ground there): it is split into
+    SUBDIVISIONS sub-intervals, at most MAX_DEPTH times (then it is reported, not dropped)."""
+    cand = _sign_changes(fan)
+    if cand.size == 0:
+        return
+    k = _reflections_at(model, fan, az, np.unique(np.concatenate([cand, cand + 1])))
+    for j in cand:
+        j = int(j)
+        if k[j] == k[j + 1]:
+            u = fan.f[j] / (fan.f[j] - fan.f[j + 1])
+            el = fan.el[j] + u * (fan.el[j + 1] - fan.el[j])
+            t = fan.t[j] + u * (fan.t[j + 1] - fan.t[j])
+            out.append(_Bracket(np.array([el, az]), float(t), k[j]))
+        elif depth < MAX_DEPTH:
+            sub = np.linspace(fan.el[j], fan.el[j + 1], SUBDIVISIONS + 1)
+            _resolve(model, r, _trace_fan(model, sub, az, r, st, max_time_s), az, st, max_time_s, depth + 1, out,
+                     failures)  # fmt: skip
+        else:
+            failures.append(
+                EigenrayFailure(
+                    math.degrees(float(fan.el[j])),
+                    min(k[j], k[j + 1]),
+                    f"a branch boundary ({k[j]} / {k[j + 1]} reflections) stays within "
+                    f"{math.degrees(float(fan.el[j + 1] - fan.el[j])):.2g} deg of a root",
+                )
+            )
+
+
+def _brackets(
+    model: RayModel, r: np.ndarray, st: SearchSettings, max_time_s: float
+) -> tuple[list[_Bracket], list[EigenrayFailure]] | str:
+    d = r - model.origin
+    if math.hypot(float(d[0]), float(d[1])) < 1e-6:
         return "the receiver is directly above or below the source (the bracket needs a horizontal offset)"
-    h0 = d[:2] / rng
     az0 = math.atan2(float(d[1]), float(d[0]))
     half = 0.5 * math.pi * (1.0 - 1.0 / st.elevations)
-    els = np.linspace(-half, half, st.elevations)
-    gammas = np.column_stack([els, np.full(els.size, az0)])
-    res = _trace_to(model, gammas, max_time_s, paraxial=False, path_samples=st.path_samples)
-    f, t_cross = _range_crossings(res, model.origin, h0, rng, float(r[2]))
-    ok = np.isfinite(f)
-    k = np.full(els.size, -1, np.int64)
-    cand = np.nonzero(ok[:-1] & ok[1:] & (np.sign(f[:-1]) != np.sign(f[1:])))[0]
+    fan = _trace_fan(model, np.linspace(-half, half, st.elevations), az0, r, st, max_time_s)
     out: list[_Bracket] = []
-    with _one_thread():
-        for i in np.unique(np.concatenate([cand, cand + 1])):
-            k[i] = probe(model, gammas[i], float(t_cross[i])).reflections
-    for j in cand:
-        if k[j] != k[j + 1]:
-            continue
-        u = f[j] / (f[j] - f[j + 1])
-        g = gammas[j] + u * (gammas[j + 1] - gammas[j])
-        out.append(_Bracket(g, float(t_cross[j] + u * (t_cross[j + 1] - t_cross[j])), int(k[j])))
-    return out
+    failures: list[EigenrayFailure] = []
+    _resolve(model, r, fan, az0, st, max_time_s, 0, out, failures)
+    return out, failures
 
 
 def find_eigenrays(
@@ -400,11 +447,11 @@ def find_eigenrays(
     """
     st = settings or SearchSettings()
     r = np.asarray(receiver, float).reshape(3)
-    brackets = _brackets(model, r, st, max_time_s)
-    if isinstance(brackets, str):
-        return EigenraySearch([], [EigenrayFailure(math.nan, -1, brackets)], 0)
+    found = _brackets(model, r, st, max_time_s)
+    if isinstance(found, str):
+        return EigenraySearch([], [EigenrayFailure(math.nan, -1, found)], 0)
+    brackets, failures = found
     arrivals: list[Arrival] = []
-    failures: list[EigenrayFailure] = []
     seen: list[tuple[np.ndarray, int]] = []
     with _one_thread():
         _refine_all(model, r, brackets, st, arrivals, failures, seen)

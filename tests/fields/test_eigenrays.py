@@ -83,6 +83,20 @@ def test_linear_c_arrival_times_match_the_closed_form_circle(receiver: tuple[flo
         assert a.miss_m <= SearchSettings().tolerance_m
 
 
+def test_a_root_next_to_a_grazing_branch_boundary_is_found() -> None:
+    """Nearly homogeneous (g = 1e-4 /s), receiver at 500 m: the direct root (-0.06 deg) and the ray that
+    grazes the ground at the receiver's range (-0.23 deg) lie in one 0.25 deg fan interval whose ends
+    differ in reflection count; the interval is split until they are apart (before the split the direct
+    arrival was missed)."""
+    g = 1e-4
+    r = np.array([500.0, 0.0, 1.5])
+    search = find_eigenrays(_linear_model(g), r, 3.0)
+    assert not search.failures
+    assert sorted(a.reflections for a in search.arrivals) == [0, 1]
+    assert abs(search.arrivals[0].time_s - travel_time(SRC, r, C_LIN, g)) < TIME_TOL_S
+    assert abs(search.arrivals[1].time_s - reflected_times(SRC, r, C_LIN, g)[0]) < TIME_TOL_S
+
+
 def test_upward_refraction_shadow_has_no_eigenray_and_says_so() -> None:
     """g = -0.1 /s: the geometric shadow starts near sqrt(2 R zs) + sqrt(2 R zr) = 218 m (R = c / |g|);
     a receiver at 300 m has no eigenray, one at 100 m has its direct and reflected arrivals."""

@@ -30,7 +30,9 @@ def travel_time(a: np.ndarray, b: np.ndarray, c0: float, g: float) -> float:
     d2 = float(np.sum((np.asarray(a, float) - np.asarray(b, float)) ** 2))
     if g == 0.0:
         return math.sqrt(d2) / c0
-    return math.acosh(1.0 + g * g * d2 / (2.0 * speed(a[2], c0, g) * speed(b[2], c0, g))) / abs(g)
+    eps = g * g * d2 / (2.0 * speed(a[2], c0, g) * speed(b[2], c0, g))
+    # arccosh(1 + eps) without the cancellation of forming 1 + eps (eps ~ 1e-8 for weak gradients)
+    return math.log1p(eps + math.sqrt(eps * (2.0 + eps))) / abs(g)
 
 
 def travel_time_quadrature(a: np.ndarray, b: np.ndarray, c0: float, g: float) -> float:
