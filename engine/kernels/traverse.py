@@ -599,7 +599,9 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
             paraxial.advance(par, param)
             p_norm = _p_at(cs, param, p_end)
             if face >= 0:
-                paraxial.onto_face(par, planes[cell, face], p_end, g, math.inf)
+                # exact derivatives unless the state feeds beams: then the kick of a near-tangential crossing
+                # is bounded (paraxial.onto_face; docs/physics.md §11)
+                paraxial.onto_face(par, planes[cell, face], p_end, g, cell_size / p_norm if deposit_on else math.inf)
                 if deposit_on and (neighbours[cell, face] < 0 or s + ds - bray.last[beams.S_ARC] >= beam.tabs.chord_m):
                     beams.ray_sample(beam, acc, bray, xn, dn, t + dt, s + ds, p_norm / c_ref, par, reflections,
                                      refl_cos, refl_mat, launch_cos, False)  # fmt: skip
