@@ -319,6 +319,15 @@ def _add_export(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
 COMMANDS.append(_add_export)
 
 
+def _add_lden(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    from bentray.clients.lden_cli import add_lden  # bentray lden (period levels and Lden of conditions)
+
+    add_lden(sub)
+
+
+COMMANDS.append(_add_lden)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="bentray", description="Outdoor-acoustics curved-ray engine.")
     parser.add_argument("--version", action="version", version=f"bentray {bentray.__version__}")
