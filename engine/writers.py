@@ -296,6 +296,8 @@ def _write_preview(outcome: JobOutcome, path: Path) -> None:
         label=label,
         ground_z=fa.preview.get("ground_z"),
         receiver_height=fa.preview.get("receiver_height_m"),
+        classes=name.startswith("spl"),  # levels: DIN 18005 classes; transmission loss: a continuous scale
+        footprints=fa.preview.get("footprints", ()),  # plan rings (local metres) when the field stage gives them
     )
 
 
