@@ -193,3 +193,18 @@ def test_lden_is_the_hand_computation_from_the_two_condition_maps(study):
         rows = list(csv.DictReader(fh))
     assert {"lday", "levening", "lnight", "lden"} <= set(rows[0]) and len(rows) > 10
     assert json.loads((study / "lden" / "isophones_lden.geojson").read_text())["features"]
+
+
+def test_field_vti_carries_the_crs_and_local_origin(study):
+    import pyvista as pv
+
+    from bentray.engine.export.field_grid import read_field_vti
+
+    grid = pv.read(study / "homogeneous" / "field.vti")
+    assert int(np.asarray(grid.field_data["crs_epsg"]).ravel()[0]) == 25832
+    wkt = grid.field_data["crs_wkt"]
+    assert str(wkt if isinstance(wkt, str) else np.asarray(wkt).ravel()[0]).startswith("PROJCRS")
+    np.testing.assert_array_equal(np.asarray(grid.field_data["local_origin_m"]).ravel(), [X0, Y0])
+    # without report.json the exports still find the georeference in the file
+    frame = read_field_vti(study / "homogeneous" / "field.vti").frame
+    assert frame.origin == (X0, Y0) and frame.crs_wkt is not None
