@@ -155,6 +155,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"{job_path}: valid job ({job.n_rays:,} rays)")
         return 0
 
+    from bentray.clients.progress import RunProgress
     from bentray.engine.errors import JobInputError
     from bentray.engine.executors import make_executor
     from bentray.engine.run import run_job
@@ -162,10 +163,13 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     executor = make_executor(dask_address(args.dask))
     t0 = time.perf_counter()
+    progress = RunProgress(job.n_rays)  # stages and a ray bar on a terminal; nothing when piped
     try:
-        outcome = run_job(job, job_path.absolute().parent, executor=executor)
+        outcome = run_job(job, job_path.absolute().parent, executor=executor, progress=progress)
     except JobInputError as exc:  # the job cannot run as asked: its lines name the field
         raise CommandError(f"{job_path}: invalid job:\n{exc}", code=2) from None
+    finally:
+        progress.close()
     written = write_outcome(outcome, list(job.outputs), out_dir)
     print(_summary(job, outcome, written, time.perf_counter() - t0))
     return 0
@@ -317,6 +321,15 @@ def _add_export(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
 
 
 COMMANDS.append(_add_export)
+
+
+def _add_lden(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    from bentray.clients.lden_cli import add_lden  # bentray lden (period levels and Lden of conditions)
+
+    add_lden(sub)
+
+
+COMMANDS.append(_add_lden)
 
 
 def build_parser() -> argparse.ArgumentParser:

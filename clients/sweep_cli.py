@@ -6,8 +6,10 @@ Each value gives a copy of the job with that field set (``profile.b``, ``sources
 list items by index; a missing last key is added), validated before anything runs (a bad value exits
 with status 2 naming the field). Outputs of each job go to ``DIR/<param>=<value>/`` (the job's own
 ``outputs``), and ``DIR/sweep.csv`` has one row per value: rays by status, trace and wall seconds and,
-for field jobs, the mean over the grid's finite points of ``spl_a`` (else the transmission loss band
-nearest 1 kHz, as in preview.png).
+for field jobs, the energy mean (``10 lg mean 10^(L/10)``; for a transmission loss ``-10 lg mean
+10^(-TL/10)``) over the grid's finite points of ``spl_a`` (else the transmission loss band nearest 1 kHz,
+as in preview.png), with a column ``field_mean_over`` naming those points. Each job's name gets the swept
+value (``town_profile.b_-0.5``), so every preview.png has its own title.
 
 Executors. Without Dask (no ``--dask`` and no ``BENTRAY_DASK_SCHEDULER``) the jobs run one after
 another in this process. With Dask each value is ONE Dask task that runs the whole job (profile, mesh,
@@ -54,6 +56,7 @@ class SweepRow:
     wall_s: float
     field_array: str
     field_mean: float
+    field_mean_over: str = ""
 
 
 def parse_values(text: str) -> list[tuple[str, Any]]:
@@ -104,16 +107,40 @@ def set_dotted(spec: dict[str, Any], path: str, value: Any) -> dict[str, Any]:
     return out
 
 
-def field_summary(outcome: Any) -> tuple[str, float]:
-    """(array name, mean over finite grid points in dB) of the preview array; ("", nan) without a field."""
+def energy_mean_db(values: Any, *, loss: bool = False) -> tuple[float, int]:
+    """(energy mean in dB, number of finite values) of a level array: ``10 lg(mean 10^(L/10))``; for a loss
+    (TL, dB re the 1 m free field, larger is quieter) ``-10 lg(mean 10^(-TL/10))``. NaN / inf values (no
+    beam reached the point, inside a solid) are left out; (nan, 0) when none is finite."""
+    import numpy as np
+
+    arr = np.asarray(values, dtype=np.float64)
+    finite = arr[np.isfinite(arr)]
+    if not finite.size:
+        return math.nan, 0
+    sign = -1.0 if loss else 1.0
+    top = float(finite.max() if not loss else finite.min())  # factored out: no overflow at 300+ dB
+    mean = float(np.mean(10.0 ** (sign * (finite - top) / 10.0)))
+    return top + sign * 10.0 * math.log10(mean), int(finite.size)
+
+
+def field_summary(outcome: Any) -> tuple[str, float, str]:
+    """(array name, energy mean in dB, over which points) of the preview array; ("", nan, "") without a field."""
     import numpy as np
 
     if outcome.field is None:
-        return "", math.nan
+        return "", math.nan, ""
     name, _ = outcome.field.preview_array()
     arr = np.asarray(outcome.field.arrays[name], float)
-    finite = arr[np.isfinite(arr)]
-    return name, float(finite.mean()) if finite.size else math.nan
+    mean, n = energy_mean_db(arr, loss=name.startswith("tl_"))
+    return name, mean, f"energy mean over the {n} of {arr.size} grid points with a finite {name}"
+
+
+def _job_name(spec: dict[str, Any], param: str, label: str) -> str:
+    """The job's name with the swept value (the preview title of each job names its value)."""
+    import re
+
+    name = f"{spec.get('name', 'job')}_{param}_{label}"
+    return re.sub(r"[^A-Za-z0-9._-]", "_", name)[:100]
 
 
 def _run_one(spec: dict[str, Any], base_dir: str | None) -> Any:
@@ -152,6 +179,7 @@ def run_sweep(
     specs = []
     for label, value in values:
         spec = set_dotted(base, param, value)
+        spec["name"] = _job_name(spec, param, label)
         try:
             job = Job.model_validate(spec)
         except ValidationError as exc:
@@ -165,7 +193,7 @@ def run_sweep(
         label, value, _, outputs = specs[i]
         target = out_dir / f"{param}={label}"
         write_outcome(outcome, outputs, target)
-        name, mean = field_summary(outcome)
+        name, mean, over = field_summary(outcome)
         timings = outcome.report.get("timings_s", {})
         rows[label] = SweepRow(
             label,
@@ -176,6 +204,7 @@ def run_sweep(
             float(timings.get("job_wall", 0.0)),
             name,
             mean,
+            over,
         )
         say(f"{param}={label}: {outcome.trace.n_rays} rays, trace {rows[label].trace_s:.2f} s -> {target}")
 
@@ -209,7 +238,8 @@ def run_sweep(
 
 
 def write_sweep_csv(param: str, rows: list[SweepRow], path: Path) -> None:
-    """sweep.csv: param, value, dir, rays_total, rays_<status>..., trace_s, wall_s, field_array, field_mean_db."""
+    """sweep.csv: param, value, dir, rays_total, rays_<status>..., trace_s, wall_s, field_array, field_mean_db
+    (the energy mean of the preview array, :func:`energy_mean_db`), field_mean_over (which points)."""
     statuses = list(rows[0].rays) if rows else []
     with open(path, "w", newline="", encoding="utf-8") as fh:
         w = csv.writer(fh)
@@ -224,6 +254,7 @@ def write_sweep_csv(param: str, rows: list[SweepRow], path: Path) -> None:
                 "wall_s",
                 "field_array",
                 "field_mean_db",
+                "field_mean_over",
             ]
         )
         for r in rows:
@@ -238,6 +269,7 @@ def write_sweep_csv(param: str, rows: list[SweepRow], path: Path) -> None:
                     f"{r.wall_s:.6f}",
                     r.field_array,
                     "" if math.isnan(r.field_mean) else f"{r.field_mean:.6f}",
+                    r.field_mean_over,
                 ]
             )
 

@@ -178,40 +178,6 @@ def preview_slice_indices(
     return k, j
 
 
-def _panel(
-    fig: Any,
-    ax: Any,
-    axis_u: np.ndarray,
-    axis_v: np.ndarray,
-    data: np.ndarray,
-    u_label: str,
-    v_label: str,
-    norm: Any,
-    label: str,
-) -> None:
-    """Draw one slice: an image if both axes have >= 2 nodes, a line if one has 1, a point if both."""
-    masked = np.ma.masked_invalid(data)
-    nu, nv = data.shape
-    if nu >= 2 and nv >= 2:
-        du, dv = axis_u[1] - axis_u[0], axis_v[1] - axis_v[0]
-        extent = (axis_u[0] - du / 2, axis_u[-1] + du / 2, axis_v[0] - dv / 2, axis_v[-1] + dv / 2)
-        im = ax.imshow(
-            masked.T, origin="lower", extent=extent, aspect="auto", norm=norm, cmap="viridis", interpolation="nearest"
-        )
-        fig.colorbar(im, ax=ax, label=label, extend="both")
-        ax.set_xlabel(u_label)
-        ax.set_ylabel(v_label)
-        return
-    if nu >= 2 or nv >= 2:
-        x, y, xl = (axis_u, masked[:, 0], u_label) if nu >= 2 else (axis_v, masked[0, :], v_label)
-    else:
-        x, y, xl = axis_u, masked[:, 0], u_label
-    ax.plot(x, y, marker="." if len(x) < 50 else None, color="C0")
-    ax.set_xlabel(xl)
-    ax.set_ylabel(label)
-    ax.grid(True, alpha=0.3)
-
-
 def terrain_following_slice(
     values: np.ndarray, origin: ArrayLike, spacing: ArrayLike, ground_z: np.ndarray, height: float
 ) -> np.ndarray:
@@ -224,6 +190,150 @@ def terrain_following_slice(
     inside = (kk >= 0) & (kk < nz)
     ii, jj = np.meshgrid(np.arange(nx), np.arange(ny), indexing="ij")
     return np.where(inside, values[ii, jj, np.clip(kk, 0, nz - 1)], np.nan)
+
+
+# DIN 18005-2:1991 colours of the 5 dB classes (< 35, 35-40, ..., 75-80, >= 80 dB), as NoiseModelling
+# encodes them (Docs/styles/style_din_18005-2.sld); ISO 1996-2:1987 gave the same scheme. Greens below
+# 45 dB, yellow-brown-orange 45-60, reds 60-70, violet and blues from 70.
+DIN_18005_CLASS_EDGES_DB: tuple[float, ...] = tuple(float(v) for v in range(35, 81, 5))
+DIN_18005_COLOURS: tuple[str, ...] = (
+    "#B7CE8E", "#1D8435", "#0E4C3C", "#ECD721", "#9F6F2C", "#EF7926",
+    "#C71932", "#8D1A27", "#88497B", "#18558C", "#134367",
+)  # fmt: skip
+NO_DATA_COLOUR = "#FFFFFF"  # no value (no beam reached the point, inside a solid, outside the grid)
+BUILDING_COLOUR = "#8C8C8C"
+
+
+def _scale(finite: np.ndarray, db_range: float | None, classes: bool) -> tuple[Any, Any, list[float] | None]:
+    """(norm, cmap, class edges or None): DIN 18005 classes of 5 dB for levels, else a continuous
+    viridis scale spanning [top - db_range, top], top the 99.5th percentile (the source node is singular)."""
+    from matplotlib.colors import BoundaryNorm, ListedColormap, Normalize
+
+    if classes:
+        edges = list(DIN_18005_CLASS_EDGES_DB)
+        cmap = ListedColormap(DIN_18005_COLOURS[1:-1]).with_extremes(
+            under=DIN_18005_COLOURS[0], over=DIN_18005_COLOURS[-1], bad=NO_DATA_COLOUR
+        )
+        return BoundaryNorm(edges, cmap.N), cmap, edges
+    if finite.size:
+        vmax = float(np.percentile(finite, PREVIEW_TOP_PERCENTILE))
+        vmin = float(finite.min()) if db_range is None else max(float(finite.min()), vmax - float(db_range))
+        if vmin == vmax:
+            vmin, vmax = vmin - 1.0, vmax + 1.0
+    else:
+        vmin, vmax = 0.0, 1.0
+    from matplotlib import colormaps
+
+    return Normalize(vmin=vmin, vmax=vmax), colormaps["viridis"].with_extremes(bad=NO_DATA_COLOUR), None
+
+
+def _image(
+    fig: Any, ax: Any, u: np.ndarray, v: np.ndarray, data: np.ndarray, style: Any, label: str, equal: bool
+) -> Any:
+    """An image of ``data`` (nu, nv) on node axes u, v (each node a cell) with its colour bar."""
+    norm, cmap, edges = style
+    du = u[1] - u[0] if len(u) > 1 else 1.0
+    dv = v[1] - v[0] if len(v) > 1 else 1.0
+    extent = (u[0] - du / 2, u[-1] + du / 2, v[0] - dv / 2, v[-1] + dv / 2)
+    im = ax.imshow(np.ma.masked_invalid(data).T, origin="lower", extent=extent, norm=norm, cmap=cmap,
+                   interpolation="nearest", aspect="equal" if equal else "auto")  # fmt: skip
+    bar = fig.colorbar(im, ax=ax, label=label, extend="both")
+    if edges is not None:
+        bar.set_ticks(edges)
+        bar.ax.set_title("DIN 18005", fontsize=7)
+    return extent
+
+
+def _line(ax: Any, x: np.ndarray, y: np.ndarray, x_label: str, label: str) -> None:
+    ax.plot(x, np.ma.masked_invalid(y), marker="." if len(x) < 50 else None, color="C0")
+    ax.set_xlabel(x_label)
+    ax.set_ylabel(label)
+    ax.grid(True, alpha=0.3)
+
+
+def _nice_length(span: float) -> float:
+    """A 1-2-5 x 10^n length near a fifth of ``span`` (metres) for the scale bar."""
+    target = max(span / 5.0, 1e-9)
+    base = 10.0 ** math.floor(math.log10(target))
+    return float(max(m * base for m in (1.0, 2.0, 5.0) if m * base <= target))
+
+
+def _scale_bar(ax: Any, extent: tuple[float, float, float, float]) -> None:
+    """A black bar of a round length in the lower-left corner of a plan view, labelled in m / km."""
+    x0, x1, y0, y1 = extent
+    length = _nice_length(x1 - x0)
+    bx, by = x0 + 0.05 * (x1 - x0), y0 + 0.06 * (y1 - y0)
+    ax.plot([bx, bx + length], [by, by], color="black", linewidth=3, solid_capstyle="butt")
+    text = f"{length / 1000:g} km" if length >= 1000 else f"{length:g} m"
+    ax.text(bx + length / 2, by + 0.02 * (y1 - y0), text, ha="center", va="bottom", fontsize=8)
+
+
+def _map_overlays(ax: Any, x: np.ndarray, y: np.ndarray, data: np.ndarray, edges: list[float] | None,
+                  ground: np.ndarray | None, footprints: Sequence[ArrayLike]) -> list[Any]:  # fmt: skip
+    """Isophones (black lines at the class edges), terrain contours (brown, dashed) and buildings on a plan
+    view; returns the legend handles they add."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch, Polygon
+
+    handles: list[Any] = []
+    finite = np.isfinite(data)
+    if edges is not None and len(x) > 1 and len(y) > 1 and finite.sum() > 3:
+        inside = [e for e in edges if np.nanmin(data) < e < np.nanmax(data)]
+        if inside:
+            ax.contour(x, y, np.ma.masked_invalid(data).T, levels=inside, colors="black", linewidths=0.6)
+            handles.append(Line2D([], [], color="black", linewidth=0.6, label="isophones (5 dB)"))
+    if ground is not None and len(x) > 1 and len(y) > 1 and np.ptp(ground) > 0:
+        ax.contour(x, y, ground.T, levels=8, colors="#7F4F24", linewidths=0.5, linestyles="dashed")
+        handles.append(Line2D([], [], color="#7F4F24", linewidth=0.5, linestyle="--", label="terrain contours"))
+    for ring in footprints:
+        xy = np.asarray(ring, dtype=np.float64)[:, :2]
+        ax.add_patch(Polygon(xy, closed=True, facecolor=BUILDING_COLOUR, edgecolor="black", linewidth=0.6))
+    if len(footprints):
+        handles.append(Patch(facecolor=BUILDING_COLOUR, edgecolor="black", label="buildings"))
+    return handles
+
+
+def _plan_panel(fig: Any, ax: Any, axes: list[np.ndarray], data: np.ndarray, style: Any, label: str,
+                src: np.ndarray, ground: np.ndarray | None, footprints: Sequence[ArrayLike]) -> None:  # fmt: skip
+    """The horizontal panel as a map: equal aspect, classes, overlays, scale bar, source and a legend
+    (no-data included). A line or a point when the grid is one node thick."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    x, y = axes[0], axes[1]
+    if len(x) < 2 or len(y) < 2:
+        _line(ax, x if len(x) >= 2 else y, data[:, 0] if len(x) >= 2 else data[0, :],
+              "x (m)" if len(x) >= 2 else "y (m)", label)  # fmt: skip
+        return
+    extent = _image(fig, ax, x, y, data, style, label, equal=True)
+    handles = _map_overlays(ax, x, y, data, style[2], ground, footprints)
+    ax.plot([src[0]], [src[1]], marker="*", color="red", markersize=11, markeredgecolor="black", linestyle="none")
+    handles.append(Line2D([], [], marker="*", color="red", markeredgecolor="black", linestyle="none", label="source"))
+    handles.append(Patch(facecolor=NO_DATA_COLOUR, edgecolor="black", label="no value"))
+    _scale_bar(ax, extent)
+    ax.set_xlim(extent[0], extent[1])
+    ax.set_ylim(extent[2], extent[3])
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.legend(handles=handles, loc="upper right", fontsize=7, framealpha=0.85)
+
+
+def _section_panel(fig: Any, ax: Any, axes: list[np.ndarray], data: np.ndarray, style: Any, label: str,
+                   src: np.ndarray, ground: np.ndarray | None, j: int, z_slice: float) -> None:  # fmt: skip
+    """The vertical x-z panel at the source's y: the ground line (terrain) or the slice height."""
+    x, z = axes[0], axes[2]
+    if len(x) < 2:
+        _line(ax, z, data[0, :], "z (m)", label)
+        return
+    _image(fig, ax, x, z, data, style, label, equal=False)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("z (m)")
+    ax.set_title(f"vertical slice y = {axes[1][j]:.3g} m")
+    ax.plot([src[0]], [src[2]], marker="*", color="red", markersize=10, linestyle="none")
+    if ground is not None:
+        ax.plot(x, ground[:, j], color="black", linewidth=1.2)
+    else:
+        ax.axhline(z_slice, color="black", linewidth=0.8, linestyle="--")
 
 
 def write_preview_png(
@@ -240,30 +350,23 @@ def write_preview_png(
     db_range: float | None = PREVIEW_DB_RANGE,
     ground_z: ArrayLike | None = None,
     receiver_height: float | None = None,
+    classes: bool = False,
+    footprints: Sequence[ArrayLike] = (),
 ) -> Path:
-    """Write a two-panel PNG preview of a field in dB, atomically.
+    """Write a PNG preview of a field in dB, atomically: a map (x-y) and a vertical section (x-z).
 
-    Panels: the horizontal x-y slice at the z-node nearest ``receiver_z`` and the vertical x-z slice at
-    the y-node nearest the source (:func:`preview_slice_indices`), one shared colour scale with a colour
-    bar in dB. NaN and +-inf are left blank. A slice one node thick along an axis is drawn as a line plot;
-    a panel whose slice is contained in the other one (nz == 1: the x-z slice is a row of the x-y slice;
-    ny == 1: the x-y slice is a row of the x-z slice) is dropped, so a receiver line of shape (n, 1, 1)
-    gives one line plot.
-
-    Parameters
-    ----------
-    values : (nx, ny, nz) float, dB, C order indexed [i, j, k] (see the module docstring).
-    source_xyz : (3,) float, metres, world frame (marked on the panels).
-    receiver_z : height of the horizontal slice, metres.
-    db_range : the colour scale spans [top - db_range, top], top the 99.5th percentile of the finite values
-        shown (values above saturate); None: down to the smallest finite value.
-    ground_z, receiver_height : over terrain, the ground height (nx, ny) metres under each grid column
-        and the receiver height above it: the horizontal panel then follows the terrain (the node nearest
-        ground + receiver_height in each column; blank where that is outside the grid) and the vertical
-        panel draws the ground line.
+    The map is the horizontal slice at the z-node nearest ``receiver_z`` (over terrain, ``ground_z`` (nx,
+    ny) and ``receiver_height``: the node nearest ground + height in each column) at equal aspect, with
+    a scale bar, the source (red star), terrain contours, ``footprints`` (plan rings (n, 2), metres) and a
+    legend that includes "no value" (white: NaN / inf, no beam reached the point). ``classes`` (levels
+    such as SPL): 5 dB classes 35 ... 80 dB in the DIN 18005-2:1991 colours (``DIN_18005_COLOURS``) with
+    isophones at the class edges; otherwise a continuous viridis scale over ``db_range`` dB below the
+    99.5th percentile (None: down to the smallest finite value; TL arrays). The section is the x-z slice
+    at the y-node nearest the source (:func:`preview_slice_indices`). A panel one node thick is a line
+    plot; one contained in the other (nz == 1, or ny == 1) is dropped. ``title``: the figure's title
+    (one per job: a sweep names the value in it). values (nx, ny, nz) dB [i, j, k]; positions metres.
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.colors import Normalize
     from matplotlib.figure import Figure
 
     o, s, shp = _check_grid(origin, spacing, shape)
@@ -273,53 +376,26 @@ def write_preview_png(
     src = np.asarray(source_xyz, dtype=np.float64)
     k, j = preview_slice_indices(o, s, shp, src, receiver_z)
     axes = [o[d] + s[d] * np.arange(shp[d]) for d in range(3)]
-    horizontal = v[:, :, k]  # (nx, ny)
-    vertical = v[:, j, :]  # (nx, nz)
-    ground = None
+    horizontal, ground = v[:, :, k], None
     if ground_z is not None and receiver_height is not None:
         ground = np.asarray(ground_z, dtype=np.float64).reshape(shp[0], shp[1])
         horizontal = terrain_following_slice(v, o, s, ground, float(receiver_height))
-    panels = []
-    if not (shp[1] == 1 and shp[2] > 1):
-        panels.append(("h", horizontal))
-    if shp[2] > 1:
-        panels.append(("v", vertical))
-
+    panels = ([("h", horizontal)] if not (shp[1] == 1 and shp[2] > 1) else []) + (
+        [("v", v[:, j, :])] if shp[2] > 1 else []
+    )
     shown = np.concatenate([p[1].ravel() for p in panels])
     finite = shown[np.isfinite(shown)]
-    if finite.size:
-        # The 99.5th percentile rather than the maximum: the field is singular at the source, and one
-        # near-source node would otherwise push everything else to the bottom of the scale.
-        vmax = float(np.percentile(finite, PREVIEW_TOP_PERCENTILE))
-        vmin = float(finite.min()) if db_range is None else max(float(finite.min()), vmax - float(db_range))
-        if vmin == vmax:
-            vmin, vmax = vmin - 1.0, vmax + 1.0
-    else:
-        vmin, vmax = 0.0, 1.0
-    norm = Normalize(vmin=vmin, vmax=vmax)
-
+    style = _scale(finite, db_range, classes)
     fig = Figure(figsize=(6.0 * len(panels), 4.5), layout="constrained")
     FigureCanvasAgg(fig)
     for n, (kind, data) in enumerate(panels):
         ax = fig.add_subplot(1, len(panels), n + 1)
         if kind == "h":
-            _panel(fig, ax, axes[0], axes[1], data, "x (m)", "y (m)", norm, label)
-            ax.set_title(
-                f"{receiver_height:.3g} m above the ground"
-                if ground is not None
-                else f"horizontal slice z = {axes[2][k]:.3g} m"
-            )
-            if shp[0] > 1 and shp[1] > 1:
-                ax.plot([src[0]], [src[1]], marker="*", color="red", markersize=10, linestyle="none")
+            _plan_panel(fig, ax, axes, data, style, label, src, ground, footprints)
+            where = f"{receiver_height:.3g} m above the ground" if ground is not None else f"z = {axes[2][k]:.3g} m"
+            ax.set_title(f"map at {where}")
         else:
-            _panel(fig, ax, axes[0], axes[2], data, "x (m)", "z (m)", norm, label)
-            ax.set_title(f"vertical slice y = {axes[1][j]:.3g} m")
-            if shp[0] > 1 and shp[2] > 1:
-                ax.plot([src[0]], [src[2]], marker="*", color="red", markersize=10, linestyle="none")
-                if ground is not None:
-                    ax.plot(axes[0], ground[:, j], color="black", linewidth=1.2)
-                else:
-                    ax.axhline(axes[2][k], color="white", linewidth=0.8, linestyle="--")
+            _section_panel(fig, ax, axes, data, style, label, src, ground, j, float(axes[2][k]))
         if not finite.size:
             ax.text(0.5, 0.5, "no finite values", transform=ax.transAxes, ha="center", va="center")
     if title:

@@ -284,7 +284,13 @@ def _write_field(outcome: JobOutcome, path: Path) -> None:
 
     fa = outcome.field
     assert fa is not None
-    write_field_vti(path, fa.grid.origin, fa.grid.spacing, fa.grid.shape, fa.arrays, fa.field_data)
+    field_data = dict(fa.field_data)
+    geo = outcome.report.get("georeference")
+    if isinstance(geo, dict):  # a scene in a CRS: the WKT, EPSG code and local origin travel with the grid
+        from bentray.scenes.crs import LocalFrame
+
+        field_data.update(LocalFrame.from_dict(geo).vti_field_data())
+    write_field_vti(path, fa.grid.origin, fa.grid.spacing, fa.grid.shape, fa.arrays, field_data)
 
 
 def _write_preview(outcome: JobOutcome, path: Path) -> None:
@@ -305,6 +311,8 @@ def _write_preview(outcome: JobOutcome, path: Path) -> None:
         label=label,
         ground_z=fa.preview.get("ground_z"),
         receiver_height=fa.preview.get("receiver_height_m"),
+        classes=name.startswith("spl"),  # levels: DIN 18005 classes; transmission loss: a continuous scale
+        footprints=fa.preview.get("footprints", ()),  # plan rings (local metres) when the field stage gives them
     )
 
 

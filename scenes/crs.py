@@ -115,6 +115,42 @@ class LocalFrame:
         """``{"crs": WKT or None, "local_origin": [x0, y0]}`` for report.json (what the exports read)."""
         return {"crs": self.crs_wkt, "local_origin": [self.origin[0], self.origin[1]]}
 
+    def vti_field_data(self) -> dict[str, Any]:
+        """Field data for field.vti (ParaView shows it in the Information panel): ``crs_wkt`` (WKT2, ASCII),
+        ``crs_epsg`` (the code, when the CRS has one; needs pyproj), ``local_origin_m`` [x0, y0] and
+        ``georeference`` (the rule in words). Empty for a scene in local metres without a CRS."""
+        if self.crs_wkt is None:
+            return {}
+        # VTK string arrays are ASCII: non-ASCII characters only occur in quoted names and remarks of a
+        # WKT (area of use "6°E to 12°E"), so replacing them keeps the CRS the same
+        wkt = self.crs_wkt.replace("\u00b0", " deg").encode("ascii", "replace").decode("ascii")
+        out: dict[str, Any] = {"crs_wkt": wkt, "local_origin_m": [self.origin[0], self.origin[1]]}
+        try:
+            epsg = parse_crs(self.crs_wkt).to_epsg()
+        except (CrsError, ImportError):
+            epsg = None
+        if epsg is not None:
+            out["crs_epsg"] = float(epsg)
+        out["georeference"] = (
+            "grid x, y are local metres: x_crs = x + local_origin_m[0], y_crs = y + local_origin_m[1] "
+            "in the CRS of crs_wkt; z unchanged"
+        )
+        return out
+
+    @classmethod
+    def from_vti_field_data(cls, field_data: Any) -> LocalFrame | None:
+        """The frame of a field.vti's field data (see :meth:`vti_field_data`), None when it has none."""
+        if "crs_wkt" not in field_data:
+            return None
+        wkt = field_data["crs_wkt"]
+        wkt = str(wkt if isinstance(wkt, str) else np.asarray(wkt).ravel()[0])
+        origin = (
+            np.asarray(field_data["local_origin_m"], dtype=np.float64).ravel()
+            if "local_origin_m" in field_data
+            else np.zeros(2)
+        )
+        return cls(origin=(float(origin[0]), float(origin[1])), crs_wkt=wkt)
+
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> LocalFrame:
         """Inverse of :meth:`as_dict`."""

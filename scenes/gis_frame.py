@@ -1,10 +1,10 @@
 """Job preparation for a scene in a projected CRS: move everything to the local frame the engine works in.
 
-With ``scene.crs`` set, every plan coordinate of the job (domain, sources, the field grid's origin, inline
+With ``scene.crs`` set, every plan coordinate of the job (domain, sources, receivers, the field grid's origin, inline
 footprints and ground zones, and the contents of the terrain, buildings, obstacle and zone files) is in
 that CRS. :func:`localise_job` picks the local origin (``scene.local_origin`` if given, else
 :func:`bentray.scenes.crs.choose_local_origin` of the domain's lower-left corner) and returns the job with
-domain, sources and field grid shifted by it, plus the :class:`LocalFrame` that the report carries back
+domain, sources, receivers and field grid shifted by it, plus the :class:`LocalFrame` that the report carries back
 (``report.json["georeference"]``, read by ``bentray export``). Scene geometry is shifted as it is read
 (:func:`bentray.scenes.scene_models.surfaces_from_specs` with ``offset``), so error messages about it
 give local coordinates. Profile and wind coordinates (a hot spot's centre, a grid profile's origin, a
@@ -43,6 +43,11 @@ def localise_job(job: Any) -> tuple[Any, LocalFrame]:
     update: dict[str, Any] = {"scene": scene, "sources": sources}
     if job.field is not None:
         update["field"] = job.field.model_copy(update={"origin": xy(job.field.origin)})
+    if getattr(job, "receivers", None):
+        update["receivers"] = [
+            r.model_copy(update={"position": xy(r.position)} if r.position is not None else {"xy": xy(r.xy)})
+            for r in job.receivers
+        ]
     return job.model_copy(update=update), frame
 
 

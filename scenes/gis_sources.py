@@ -10,6 +10,9 @@ far ones long. Each piece becomes a point source at its midpoint with sound powe
 
 Heights: a piece's z is the line's z (3D coordinates, interpolated) or ``height_above_ground_m``
 (GeoJSON property or argument) above ``ground(xy)`` (a callable returning ground z per point, metres).
+Without ``ground`` a piece keeps ``height_above_ground_m`` and its job source is ``{"position": [x, y],
+"height_above_ground_m": h}``: the job resolves it against the scene's terrain (or flat ground) when it
+is prepared, in whatever frame the job is in (a CRS job's line in CRS coordinates included).
 """
 
 from __future__ import annotations
@@ -34,16 +37,26 @@ _MAX_DEPTH = 40
 @dataclass
 class PointSource:
     """One piece of a line source: ``position`` (3,) metres, ``power_db`` per band (dB re 1 pW),
-    ``length_m`` of the piece, ``line`` (index of the feature) and ``name``."""
+    ``length_m`` of the piece, ``line`` (index of the feature) and ``name``; ``height_above_ground_m``
+    when the z is left to the job (position z is then NaN)."""
 
     position: tuple[float, float, float]
     power_db: dict[str, float]
     length_m: float
     line: int
     name: str
+    height_above_ground_m: float | None = None
 
     def as_job_source(self) -> dict[str, Any]:
-        """The job-file ``sources`` entry (``position``, ``power_db``, ``name``)."""
+        """The job-file ``sources`` entry (``position``, ``power_db``, ``name``; ``height_above_ground_m``
+        with a 2D position when the job resolves the height)."""
+        if self.height_above_ground_m is not None and math.isnan(self.position[2]):
+            return {
+                "position": list(self.position[:2]),
+                "height_above_ground_m": self.height_above_ground_m,
+                "power_db": dict(self.power_db),
+                "name": self.name,
+            }
         return {"position": list(self.position), "power_db": dict(self.power_db), "name": self.name}
 
 
@@ -86,7 +99,8 @@ def discretise_line(
 
     receivers : (R, 3) or (R, 2) receiver positions (the rule's distances are 3D when both are 3D);
     power_db_per_m : dB re 1 pW per metre, per band label; height_above_ground_m with ``ground``
-    (callable xy (N, 2) -> z (N,)), or z from 3D coordinates (exactly one). 0 < min_piece_m <= max_piece_m.
+    (callable xy (N, 2) -> z (N,); without it the job resolves the height), or z from 3D coordinates
+    (exactly one). 0 < min_piece_m <= max_piece_m.
     """
     p = np.asarray(coords, dtype=np.float64)
     if p.ndim != 2 or p.shape[0] < 2 or p.shape[1] not in (2, 3) or not np.all(np.isfinite(p)):
@@ -95,8 +109,8 @@ def discretise_line(
         raise ValueError(f"need 0 < min_piece_m <= max_piece_m, got {min_piece_m!r}, {max_piece_m!r}")
     if (height_above_ground_m is None) == (p.shape[1] != 3):
         raise ValueError(f"{name}: give either 3D coordinates or height_above_ground_m (exactly one)")
-    if height_above_ground_m is not None and ground is None:
-        raise ValueError(f"{name}: height_above_ground_m needs a ground height function")
+    if height_above_ground_m is not None and not (math.isfinite(height_above_ground_m) and height_above_ground_m > 0):
+        raise ValueError(f"{name}: height_above_ground_m must be > 0, got {height_above_ground_m!r}")
     if not power_db_per_m or not all(math.isfinite(v) for v in power_db_per_m.values()):
         raise ValueError(f"{name}: power_db_per_m must map band labels to finite dB values")
     r = np.asarray(receivers, dtype=np.float64)
@@ -116,12 +130,11 @@ def discretise_line(
             mid = a + 0.5 * (t0 + t1) * (b - a)
             length = (t1 - t0) * float(np.linalg.norm(b[:2] - a[:2]))
             if height_above_ground_m is not None:
-                assert ground is not None
-                mid[2] = float(np.asarray(ground(mid[None, :2]))[0]) + height_above_ground_m
+                ground_z = math.nan if ground is None else float(np.asarray(ground(mid[None, :2]))[0])
+                mid[2] = ground_z + height_above_ground_m
             power = {k: float(v) + 10.0 * math.log10(length) for k, v in power_db_per_m.items()}
-            out.append(
-                PointSource((float(mid[0]), float(mid[1]), float(mid[2])), power, length, line, f"{name} {len(out)}")
-            )
+            pos = (float(mid[0]), float(mid[1]), float(mid[2]))
+            out.append(PointSource(pos, power, length, line, f"{name} {len(out)}", height_above_ground_m))
     return out
 
 

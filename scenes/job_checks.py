@@ -46,12 +46,14 @@ def scene_problems(job: Any, base_dir: str | Path | None) -> list[str]:
     except (BentrayError, ValueError, OSError) as exc:
         problems += _lines(exc)
     if surfaces is not None:
-        positions = np.array([s.position for s in job.sources], dtype=np.float64)
+        # sources given by height above the ground (2D position) are above it by construction
+        absolute = [i for i, s in enumerate(job.sources) if len(s.position) == 3]
+        positions = np.array([job.sources[i].position for i in absolute], dtype=np.float64).reshape(-1, 3)
         try:
             check_points_above_ground(
                 surfaces,
                 positions,
-                [f"sources.{i}.position" for i in range(len(positions))],
+                [f"sources.{i}.position" for i in absolute],
                 flat_ground_z=float(scene.box.min[2]) if surfaces.terrain is None else None,
             )
         except (BentrayError, ValueError) as exc:

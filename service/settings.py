@@ -9,7 +9,7 @@ Environment variables (all optional):
 | ``BENTRAY_DATA_DIR`` | ``./bentray-data`` | job store (SQLite), inputs, results, assets |
 | ``BENTRAY_MAX_RAYS`` | 2,000,000 | rays per job (sources x elevations x azimuths) |
 | ``BENTRAY_MAX_FIELD_POINTS`` | 5,000,000 | field grid points per job |
-| ``BENTRAY_MAX_UPLOAD_BYTES`` | 64 MiB | one uploaded file (terrain, buildings, mesh, grid) |
+| ``BENTRAY_MAX_UPLOAD_BYTES`` | 64 MiB | one uploaded file (terrain, buildings, ground zones, mesh, grid) |
 | ``BENTRAY_MAX_QUEUE`` | 100 | queued jobs (not yet running) across all users; more -> 429 |
 | ``BENTRAY_MAX_JOB_SECONDS`` | 3600 | run time of one attempt; longer -> failed |
 | ``BENTRAY_RETENTION_DAYS`` | 7 | finished jobs and assets older than this are deleted |

@@ -2,8 +2,11 @@
 
 An upload is read with the same reader the engine uses, so a file that passes here is one the job
 can load; a file that does not is refused at upload time (HTTP 422) with the reader's reason.
-The kind of a file is given (``terrain``, ``buildings``, ``obstacle``, ``grid``) or follows from its
-suffix; a triangle mesh of unknown role (``mesh``) must read as an obstacle or as a terrain.
+The kind of a file is given (``terrain``, ``buildings``, ``ground_zones``, ``obstacle``, ``grid``) or
+follows from its suffix; a triangle mesh of unknown role (``mesh``) must read as an obstacle or as a
+terrain. A GeoJSON file is ``buildings`` by default: ground zones (``scene.ground_zones.file``, polygons
+with ``G``, ``flow_resistivity`` or ``material``) are uploaded as an asset with ``kind=ground_zones``, or
+with the job, where the field naming the file gives the kind.
 """
 
 from __future__ import annotations
@@ -18,11 +21,12 @@ from bentray.engine.errors import BentrayError
 
 __all__ = ["UPLOAD_KINDS", "UploadKind", "check_upload", "default_kind"]
 
-UploadKind = Literal["terrain", "buildings", "obstacle", "grid", "mesh"]
-UPLOAD_KINDS: tuple[str, ...] = ("terrain", "buildings", "obstacle", "grid", "mesh")
+UploadKind = Literal["terrain", "buildings", "ground_zones", "obstacle", "grid", "mesh"]
+UPLOAD_KINDS: tuple[str, ...] = ("terrain", "buildings", "ground_zones", "obstacle", "grid", "mesh")
 _KIND_SUFFIXES: dict[str, tuple[str, ...]] = {
     "terrain": ("asc", "npy", "npz", "obj", "stl", "ply"),
     "buildings": ("geojson", "json"),
+    "ground_zones": ("geojson", "json"),
     "obstacle": ("obj", "stl", "ply"),
     "grid": ("npz", "vti"),
     "mesh": ("obj", "stl", "ply"),
@@ -88,6 +92,26 @@ def _check_geojson(path: Path) -> None:
     read_footprints_geojson(path, materials)
 
 
+class _AnyMaterial(dict[str, int]):
+    """Every material name is known (index 0): the upload does not know the job's ``scene.materials``."""
+
+    def __contains__(self, key: object) -> bool:
+        return isinstance(key, str)
+
+    def __missing__(self, key: str) -> int:
+        return 0
+
+
+def _check_ground_zones(path: Path) -> None:
+    """Read as the engine reads ``scene.ground_zones.file`` (shapely validity, one of G, flow_resistivity
+    or material per feature); material names are checked against the job's materials when it runs."""
+    from bentray.scenes.ground_zones import ZoneMaterial, read_ground_zones_geojson
+
+    table = ZoneMaterial({}, 1)
+    table.names = _AnyMaterial()
+    read_ground_zones_geojson(path, table)
+
+
 def check_upload(path: Path, kind: UploadKind) -> str:
     """Read ``path`` as a file of ``kind``; return the kind it was accepted as.
 
@@ -115,6 +139,8 @@ def check_upload(path: Path, kind: UploadKind) -> str:
                 read_terrain(path)
         elif kind == "buildings":
             _check_geojson(path)
+        elif kind == "ground_zones":
+            _check_ground_zones(path)
         elif kind == "obstacle":
             read_obstacle_mesh(path)
         elif kind == "grid":

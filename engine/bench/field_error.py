@@ -116,6 +116,41 @@ def image_errors(tl: np.ndarray) -> dict[str, float]:
     }
 
 
+def paraxial_cost(quick: bool) -> Table:
+    """Trace time with the paraxial state carried (``paraxial=True``) against the plain traversal, same
+    rays, rounds interleaved in one process (best of each): the desert terrain mesh and the A-LD slabs."""
+    from bentray.engine.bench.scene_meshes import build_scene_mesh
+    from bentray.engine.tracer import trace
+
+    table = Table(
+        "paraxial_cost",
+        "Cost of carrying the paraxial state (one thread)",
+        ["case", "rays", "crossings", "plain_s", "paraxial_s", "ratio"],
+    )
+    rounds = 2 if quick else 5
+    for name, n in (("desert", 1000 if quick else 4000),):
+        sc = build_scene_mesh(name, n)
+        kw = {"max_time_s": 10.0, "max_reflections": 3}
+        args = (sc.mesh, "parabolic", 340.0, sc.origins, sc.directions, sc.start_cells)
+        best = {False: np.inf, True: np.inf}
+        res = trace(*args, **kw)
+        trace(*args, paraxial=True, **kw)
+        for r in range(rounds):
+            for par in (False, True) if r % 2 == 0 else (True, False):
+                t0 = time.perf_counter()
+                trace(*args, paraxial=par, **kw)
+                best[par] = min(best[par], time.perf_counter() - t0)
+        table.add(
+            case=name,
+            rays=int(sc.origins.shape[0]),
+            crossings=int(res.crossings.sum()),
+            plain_s=round(best[False], 4),
+            paraxial_s=round(best[True], 4),
+            ratio=round(best[True] / best[False], 3),
+        )
+    return table
+
+
 @on_timing_threads
 def run(quick: bool) -> Section:
     repeats = 1 if quick else 2
@@ -175,6 +210,7 @@ def run(quick: bool) -> Section:
         "one thread."
     )
     sec.tables.append(table)
+    sec.tables.append(paraxial_cost(quick))
     panel = {
         "title": "mean |error| outside dips against trace + field time",
         "xlabel": "seconds",

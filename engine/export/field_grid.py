@@ -48,7 +48,9 @@ class FieldGrid:
 
 
 def read_field_vti(path: str | Path, frame: LocalFrame | None = None) -> FieldGrid:
-    """Read the scalar point arrays of a ``field.vti`` (VTK stores x fastest; returned [i, j, k])."""
+    """Read the scalar point arrays of a ``field.vti`` (VTK stores x fastest; returned [i, j, k]); the frame
+    is ``frame`` when given, else the georeference in the file's field data (``crs_wkt``,
+    ``local_origin_m``), else local metres."""
     import pyvista as pv
 
     path = Path(path)
@@ -64,6 +66,8 @@ def read_field_vti(path: str | Path, frame: LocalFrame | None = None) -> FieldGr
         arrays[name] = np.ascontiguousarray(values.reshape(dims[::-1]).transpose(2, 1, 0))
     if not arrays:
         raise ValueError(f"{path}: no scalar point arrays")
+    if frame is None:  # the georeference field.vti carries (a CRS job), else local metres
+        frame = LocalFrame.from_vti_field_data(grid.field_data)
     return FieldGrid(
         arrays=arrays,
         origin=np.asarray(grid.origin, dtype=np.float64),

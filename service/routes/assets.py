@@ -1,4 +1,4 @@
-"""``/v1/assets``: uploaded terrains, buildings GeoJSON, obstacle meshes and grid profiles, per API key."""
+"""``/v1/assets``: uploaded terrains, buildings / ground-zone GeoJSON, meshes and grid profiles, per API key."""
 
 import hashlib
 import os
@@ -82,7 +82,8 @@ def _asset_info(record: object) -> AssetInfo:
     responses=error_responses(*AUTH, *BODY, 429),
 )
 async def upload_asset(request: Request, services: ServicesDep, owner: OwnerDep) -> AssetInfo:
-    """Upload a terrain, buildings GeoJSON, obstacle mesh or grid profile; jobs name it in their file fields."""
+    """Upload a terrain, buildings or ground-zone GeoJSON (kind ground_zones), obstacle mesh or grid profile;
+    jobs name it in their file fields."""
     settings, layout = services.settings, services.layout
     if not request.headers.get("content-type", "").startswith("multipart/form-data"):
         raise UnsupportedMediaError("upload assets as multipart/form-data with a 'file' part")

@@ -58,7 +58,7 @@ _JOB_BODY = {
                         "files": {
                             "type": "array",
                             "items": {"type": "string", "format": "binary"},
-                            "description": "input files named by the job (terrain, buildings, obstacles, grid)",
+                            "description": "input files named by the job (terrain, buildings, zones, obstacles, grid)",
                         },
                     },
                 }
@@ -98,6 +98,8 @@ def _kind_for(field: str, name: str) -> UploadKind | None:
         return "obstacle"
     if field.startswith("scene.buildings."):
         return "buildings"
+    if field.startswith("scene.ground_zones."):
+        return "ground_zones"
     if field.startswith("profile."):
         return "grid"
     return default_kind(name)

@@ -110,3 +110,36 @@ def test_missing_extra_names_it(monkeypatch):
         match=r"GeoTIFF export needs the 'rasterio' package of the 'gis' extra: pip install 'bentray\[gis\]'",
     ):
         gis_deps.require("rasterio", "GeoTIFF export")
+
+
+def test_line_pieces_without_ground_leave_the_height_to_the_job():
+    pieces = discretise_line([[0, 0], [40, 0]], {"A": 70.0}, [[20, 30]], height_above_ground_m=0.5, min_piece_m=5.0)
+    src = pieces[0].as_job_source()
+    assert len(src["position"]) == 2 and src["height_above_ground_m"] == 0.5
+    from bentray.scenes.schema import Source
+
+    assert Source.model_validate(src).height_above_ground_m == 0.5
+    with pytest.raises(ValueError, match="must be > 0"):
+        discretise_line([[0, 0], [40, 0]], {"A": 70.0}, [], height_above_ground_m=0.0)
+
+
+def test_localise_job_shifts_receivers():
+    from bentray.scenes.gis_frame import localise_job
+    from bentray.scenes.schema import Job
+
+    job = Job.model_validate(
+        {
+            "name": "r",
+            "scene": {"crs": 32632, "domain": {"min": [500_100, 5_400_100, 0], "max": [500_400, 5_400_300, 50]}},
+            "profile": {"kind": "homogeneous"},
+            "sources": [{"position": [500_150, 5_400_150, 2.0]}],
+            "rays": {"elevation_deg": {"min": -10, "max": 10, "count": 3}, "max_time_s": 1.0, "max_reflections": 1},
+            "receivers": [
+                {"id": "a", "position": [500_200, 5_400_200, 4.0]},
+                {"id": "b", "xy": [500_300, 5_400_250], "height_above_ground_m": 4.0},
+            ],
+        }
+    )
+    local, frame = localise_job(job)
+    assert frame.origin == (500_000.0, 5_400_000.0)
+    assert local.receivers[0].position == (200.0, 200.0, 4.0) and local.receivers[1].xy == (300.0, 250.0)

@@ -1,0 +1,40 @@
+"""`bentray run` progress: a stage line and a ray bar on a terminal, nothing when stdout is not one."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+from bentray.clients.cli import main
+from bentray.clients.progress import RunProgress
+
+EXAMPLE = Path(__file__).resolve().parents[2] / "scenes" / "examples" / "a-ld-fan.json"
+
+
+class _Tty(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_terminal_gets_stages_and_a_ray_bar():
+    out = _Tty()
+    p = RunProgress(1000, stream=out, width=10)
+    for stage, f in [("profile", 0.0), ("mesh", 0.05), ("trace", 0.1), ("trace", 0.5), ("trace", 0.9), ("done", 1.0)]:
+        p(stage, f)
+    p.close()
+    text = out.getvalue()
+    assert "bentray: mesh" in text and "\r" in text and text.endswith("\n")
+    assert "[#####-----]  50%  500 / 1,000 rays" in text and "[##########] 100%  1,000 / 1,000 rays" in text
+
+
+def test_pipe_gets_no_progress(tmp_path, capsys):
+    quiet = io.StringIO()  # not a terminal
+    p = RunProgress(1000, stream=quiet)
+    p("trace", 0.5)
+    p.close()
+    assert quiet.getvalue() == ""
+    assert main(["run", str(EXAMPLE), "--out", str(tmp_path / "out")]) == 0
+    captured = capsys.readouterr()
+    for text in (captured.out, captured.err):
+        assert "\r" not in text and "rays  " not in text and "[#" not in text
+    assert "wrote" in captured.out  # the summary is still there
