@@ -537,6 +537,8 @@ def stage_field(
                 g.shape[0], g.shape[1]
             )
             field_arrays.preview["receiver_height_m"] = float(spec.receiver_height_m)
+        if surfaces is not None and surfaces.footprints:
+            field_arrays.preview["footprints"] = [np.asarray(fp.polygon, float) for fp in surfaces.footprints]
         field_arrays.stats["fan_spacing"] = field_stage.fan_spacing_advice(
             spec,
             np.array([src.position for src in job.sources]),
