@@ -1,20 +1,21 @@
-"""Progress of ``bentray run`` on a terminal: the stage names and a bar of the rays traced.
+"""Progress of ``bentray run`` on a terminal: the stage name and a bar of the rays traced (rich).
 
 The engine reports ``progress(stage, fraction)`` (engine/run.py: profile, scene, mesh, trace after each
-ray batch, field, done). :class:`RunProgress` draws one line, rewritten in place with a carriage return:
+ray batch, field, eigenrays, done). :class:`RunProgress` maps that onto one ``rich.progress`` task:
 
-    bentray: trace  [##############----------------]  46%  12,288 / 26,624 rays  3.1 s
+    bentray: trace   ━━━━━━━━━━━━━━━━━━━━━━━━━━━╸━━━━━━━━━━━━   46%  12288/26624 rays  0:00:03
 
-It draws only when its stream is a terminal (``isatty``): piped or redirected output (CI logs, files,
-the service) gets no progress line at all, only the summary. Standard library only (no rich or tqdm:
-neither is a bentray dependency, and one rewritten line needs neither).
+It draws only when its stream is a terminal (rich's ``Console.is_terminal``): piped or redirected output
+(CI logs, files, the service) gets no progress at all, only the summary.
 """
 
 from __future__ import annotations
 
 import sys
-import time
 from typing import TextIO
+
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TaskProgressColumn, TextColumn, TimeElapsedColumn
 
 __all__ = ["RunProgress"]
 
@@ -25,37 +26,42 @@ _TRACE_START, _TRACE_SPAN = 0.1, 0.8
 class RunProgress:
     """Callable ``(stage, fraction)`` for :func:`bentray.engine.run.run_job`; ``n_rays`` of the job."""
 
-    def __init__(self, n_rays: int, stream: TextIO | None = None, width: int = 30) -> None:
-        self.stream = stream if stream is not None else sys.stdout
-        isatty = getattr(self.stream, "isatty", None)
-        self.enabled = bool(isatty()) if callable(isatty) else False
-        self.n_rays, self.width = int(n_rays), int(width)
-        self.t0 = time.perf_counter()
-        self._last = ""
+    def __init__(self, n_rays: int, stream: TextIO | None = None) -> None:
+        console = Console(file=stream if stream is not None else sys.stdout, highlight=False)
+        self.enabled = console.is_terminal
+        self.n_rays = max(int(n_rays), 1)
+        self._progress = Progress(
+            TextColumn("bentray: {task.fields[stage]:<9}"),
+            BarColumn(),
+            TaskProgressColumn(),
+            MofNCompleteColumn(),
+            TextColumn("rays"),
+            TimeElapsedColumn(),
+            console=console,
+            disable=not self.enabled,
+            auto_refresh=False,
+        )
+        self._task = self._progress.add_task("run", total=self.n_rays, stage="start")
+        self._started = False
 
-    def line(self, stage: str, fraction: float) -> str:
-        """The progress line for a stage (a ray bar in the trace stage)."""
-        seconds = time.perf_counter() - self.t0
-        if stage != "trace":
-            return f"bentray: {stage:<7} {100 * fraction:3.0f}%  {seconds:.1f} s"
+    def rays_done(self, stage: str, fraction: float) -> int:
+        """Rays traced so far by the job's fraction (the trace stage spans 0.1 .. 0.9; 0 before it)."""
+        if stage == "done":
+            return self.n_rays
         part = min(max((fraction - _TRACE_START) / _TRACE_SPAN, 0.0), 1.0)
-        filled = round(part * self.width)
-        bar = "#" * filled + "-" * (self.width - filled)
-        rays = round(part * self.n_rays)
-        return f"bentray: trace   [{bar}] {100 * part:3.0f}%  {rays:,} / {self.n_rays:,} rays  {seconds:.1f} s"
+        return round(part * self.n_rays)
 
     def __call__(self, stage: str, fraction: float) -> None:
         if not self.enabled:
             return
-        text = self.line(stage, fraction)
-        pad = " " * max(len(self._last) - len(text), 0)
-        self.stream.write("\r" + text + pad)
-        self.stream.flush()
-        self._last = text
+        if not self._started:
+            self._progress.start()
+            self._started = True
+        self._progress.update(self._task, completed=self.rays_done(stage, fraction), stage=stage)
+        self._progress.refresh()
 
     def close(self) -> None:
-        """End the progress line (a newline), so the summary starts on its own line."""
-        if self.enabled and self._last:
-            self.stream.write("\n")
-            self.stream.flush()
-            self._last = ""
+        """Stop the live display (a final line), so the summary starts on its own line."""
+        if self._started:
+            self._progress.stop()
+            self._started = False

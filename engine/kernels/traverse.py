@@ -42,6 +42,7 @@ import numba as nb
 import numpy as np
 
 from bentray.engine.constants import (
+    BEAM_KICK_BOUND_NZ,
     BOUNDARY_OPEN,
     BOUNDARY_REFLECT,
     COUNT_CROSSINGS,
@@ -599,9 +600,11 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
             paraxial.advance(par, param)
             p_norm = _p_at(cs, param, p_end)
             if face >= 0:
-                # exact derivatives unless the state feeds beams: then the kick of a near-tangential crossing
-                # is bounded (paraxial.onto_face; docs/physics.md §11)
-                paraxial.onto_face(par, planes[cell, face], p_end, g, cell_size / p_norm if deposit_on else math.inf)
+                # exact derivatives, unless the state feeds beams and the face is slanted: then the kick of a
+                # near-tangential crossing is bounded (constants.BEAM_KICK_BOUND_NZ; docs/physics.md §11)
+                slanted = abs(planes[cell, face, 2]) < BEAM_KICK_BOUND_NZ
+                bound = cell_size / p_norm if deposit_on and slanted else math.inf
+                paraxial.onto_face(par, planes[cell, face], p_end, g, bound)
                 if deposit_on and (neighbours[cell, face] < 0 or s + ds - bray.last[beams.S_ARC] >= beam.tabs.chord_m):
                     beams.ray_sample(beam, acc, bray, xn, dn, t + dt, s + ds, p_norm / c_ref, par, reflections,
                                      refl_cos, refl_mat, launch_cos, False)  # fmt: skip
