@@ -87,7 +87,10 @@ def test_map_is_smooth_over_the_ridge():
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="terrain tets and the ridge wind (caustics; wind gradient not differentiated)")
+@pytest.mark.xfail(
+    strict=True,
+    reason="the ridge wind: 1.23 dB mean, 3.8 dB p95 (the chord-middle wind gradient is not differentiated)",
+)
 def test_map_is_smooth_with_the_ridge_wind():
     noise, inner = _point_noise(_noise_map(wind=True).field.arrays)
     assert inner.sum() > 200
