@@ -9,7 +9,8 @@ the text. Two stages, each one round trip:
 1. :func:`check_job_text`: the job JSON -> schema, server limits and the cost model -> the job's name
    and the files it names (the API then places those files in the job's inputs folder);
 2. :func:`check_job_scene`: uploaded files read as their kind, then the scene checks of
-   :func:`bentray.scenes.job_checks.scene_problems` (overlaps, sources below the ground, the medium).
+   :func:`bentray.scenes.job_checks.scene_problems` (overlaps, sources below the ground, the medium),
+   and the mesh-time estimate of a job whose profile or terrain is a file (stage 1 could not read it).
 
 Results are plain dicts (``{"ok": bool, "lines": [...], "code": str, ...}``), never exceptions.
 """
@@ -48,6 +49,7 @@ class JobLimits:
     max_field_deposits: float
     max_ray_steps: float
     threads: int
+    max_mesh_seconds: float = 600.0  # bentray.scenes.cost.DEFAULT_MESH_SECONDS
 
 
 # ---------------------------------------------------------------------------------------------
@@ -75,10 +77,11 @@ def _file_refs(value: Any, loc: tuple[str | int, ...] = ()) -> list[tuple[str, s
 
 
 def check_job_text(text: str, limits: JobLimits) -> dict[str, Any]:
-    """Stage 1: parse and validate; ``{"ok": True, "name", "refs": [(field, name)], "n_rays"}`` or an error."""
+    """Stage 1: parse and validate; ``{"ok": True, "name", "refs": [(field, name)], "n_rays", "mesh_known"}``
+    or an error. ``mesh_known`` False: the mesh-time estimate needs the job's files (stage 2 makes it)."""
     from pydantic import ValidationError
 
-    from bentray.scenes.cost import CostLimits, cost_problems
+    from bentray.scenes.cost import CostLimits, cost_problems, estimate_mesh
     from bentray.scenes.schema import JobFileError, format_validation_error, parse_job_text
 
     try:
@@ -107,17 +110,23 @@ def check_job_text(text: str, limits: JobLimits) -> dict[str, Any]:
                 field_deposits=limits.max_field_deposits,
                 ray_steps=limits.max_ray_steps,
                 threads=limits.threads,
+                mesh_seconds=limits.max_mesh_seconds,
             ),
         )
     if lines:
         return _error(lines, "over_limit")
     refs = _file_refs(job.model_dump(mode="json", exclude_none=True))
-    return {"ok": True, "name": job.name, "refs": refs, "n_rays": job.n_rays}
+    known = estimate_mesh(job).known
+    return {"ok": True, "name": job.name, "refs": refs, "n_rays": job.n_rays, "mesh_known": known}
 
 
-def check_job_scene(text: str, inputs: str, uploads: list[tuple[str, str, str]]) -> dict[str, Any]:
+def check_job_scene(
+    text: str, inputs: str, uploads: list[tuple[str, str, str]], mesh_seconds: float | None = None
+) -> dict[str, Any]:
     """Stage 2: each uploaded (field, name, kind) read as its kind, then the scene checks with files
-    in ``inputs``; ``{"ok": True}`` or an error (``invalid_file`` / ``invalid_job``)."""
+    in ``inputs``, then (``mesh_seconds`` given) the mesh-time estimate with those files;
+    ``{"ok": True}`` or an error (``invalid_file`` / ``invalid_job`` / ``over_limit``)."""
+    from bentray.scenes.cost import CostLimits, mesh_problems
     from bentray.scenes.job_checks import scene_problems
     from bentray.scenes.schema import parse_job_text
     from bentray.service.uploads import check_upload
@@ -133,7 +142,13 @@ def check_job_scene(text: str, inputs: str, uploads: list[tuple[str, str, str]])
     job = parse_job_text(text, origin="job")
     problems = scene_problems(job, inputs)
     problems = [_strip_folder(line, inputs) for line in problems]
-    return _error(problems, "invalid_job") if problems else {"ok": True}
+    if problems:
+        return _error(problems, "invalid_job")
+    if mesh_seconds is not None:
+        over = mesh_problems(job, CostLimits(mesh_seconds=mesh_seconds), inputs)
+        if over:
+            return _error([_strip_folder(line, inputs) for line in over], "over_limit")
+    return {"ok": True}
 
 
 def check_upload_file(path: str, kind: str) -> dict[str, Any]:
