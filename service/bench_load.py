@@ -107,11 +107,13 @@ def run_load(
     sampler = threading.Thread(target=_health_loop, args=(url, stop, times, problems), daemon=True)
     plan = [(k, f"load-k{k}-j{j}") for j in range(jobs_per_key) for k in range(len(keys))]
 
-    def submit(item: tuple[int, str]) -> tuple[int, str, str | None]:
+    def submit(item: tuple[int, str]) -> tuple[int, str, str | None, str]:
         k, name = item
         with httpx.Client(base_url=url, headers={"Authorization": f"Bearer {keys[k]}"}, timeout=120.0) as http:
             r = http.post("/v1/jobs", json=small_job(name, rays))
-        return k, name, str(r.json()["id"]) if r.status_code == 202 else None
+        if r.status_code == 202:
+            return k, name, str(r.json()["id"]), ""
+        return k, name, None, f"{r.status_code} {r.text[:300]}"
 
     t0 = time.perf_counter()
     sampler.start()
@@ -119,9 +121,9 @@ def run_load(
         with ThreadPoolExecutor(max_workers=len(plan)) as pool:
             submitted = list(pool.map(submit, plan))
         ids: dict[str, tuple[int, str]] = {}
-        for k, name, job_id in submitted:
+        for k, name, job_id, why in submitted:
             if job_id is None:
-                problems.append(f"{name}: submit was not accepted (202)")
+                problems.append(f"{name}: submit answered {why}")
             else:
                 ids[job_id] = (k, name)
         info: dict[str, dict[str, Any]] = {}

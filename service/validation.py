@@ -4,7 +4,9 @@ Validating a job is CPU work whose cost depends on the input (pydantic over a la
 checks, reading an uploaded terrain, sampling the medium): it runs in a long-lived helper process
 (multiprocessing ``spawn``) that the API thread waits on for at most ``Settings.validation_seconds``.
 A helper that overruns is killed (SIGKILL) and replaced; the request is answered 422 with the limit in
-the text. Two stages, each one round trip:
+the text. A new helper imports the validation modules first and says when it is ready (up to
+:data:`HELPER_START_S`, its own allowance): the time limit is the validation's, never the helper's
+start-up (a cold helper on a loaded machine took over 10 s to import them). Two stages, each one round trip:
 
 1. :func:`check_job_text`: the job JSON -> schema, server limits and the cost model -> the job's name
    and the files it names (the API then places those files in the job's inputs folder);
@@ -29,6 +31,10 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["JobLimits", "ValidationBusy", "ValidationPool", "ValidationTimeout", "check_job_scene", "check_job_text"]
+
+
+HELPER_START_S = 120.0  # a new helper's imports: waited for apart from the validation time limit
+_READY = "ready"
 
 
 class ValidationTimeout(Exception):
@@ -181,6 +187,15 @@ def _serve(conn: Connection) -> None:
 
     with contextlib.suppress(OSError):
         os.nice(5)
+    with contextlib.suppress(Exception):  # the imports of every stage, before any time limit runs
+        import bentray.scenes.cost  # noqa: F401
+        import bentray.scenes.job_checks  # noqa: F401
+        import bentray.scenes.schema  # noqa: F401
+        import bentray.service.uploads  # noqa: F401
+    try:
+        conn.send(_READY)
+    except (OSError, ValueError):
+        return
     while True:
         try:
             stage, args = conn.recv()
@@ -209,6 +224,15 @@ class _Helper:
         self.process: BaseProcess = ctx.Process(target=_serve, args=(child,), name="bentray-validate", daemon=True)
         self.process.start()
         child.close()
+        self.ready = False  # True once the helper said it finished its imports
+
+    def wait_ready(self, timeout_s: float) -> bool:
+        """Wait up to ``timeout_s`` for the helper's ready message; False if it did not come."""
+        if not self.ready:
+            if not self.conn.poll(timeout_s):
+                return False
+            self.ready = self.conn.recv() == _READY
+        return self.ready
 
     def kill(self) -> None:
         with contextlib.suppress(Exception):
@@ -275,6 +299,12 @@ class ValidationPool:
         helper = self._take(deadline + self.timeout_s)  # waiting for a free helper has its own allowance
         deadline = max(deadline, time.monotonic() + 0.5 * self.timeout_s)
         try:
+            if not helper.ready:  # a new helper: its start-up has its own allowance, then the limit runs
+                if not helper.wait_ready(HELPER_START_S):
+                    helper.kill()
+                    self._give_back(None)
+                    raise ValidationBusy(f"a validation helper did not start within {HELPER_START_S:g} s")
+                deadline = time.monotonic() + self.timeout_s
             helper.conn.send((stage, args))
             if not helper.conn.poll(max(deadline - time.monotonic(), 0.0)):
                 raise ValidationTimeout(f"validation took longer than {self.timeout_s:g} s")
