@@ -35,6 +35,12 @@ __all__ = ["JobLimits", "ValidationBusy", "ValidationPool", "ValidationTimeout",
 
 HELPER_START_S = 120.0  # a new helper's imports: waited for apart from the validation time limit
 _READY = "ready"
+# validated once by a new helper before it says it is ready (first calls import and build lazily)
+_WARM_JOB = (
+    '{"name": "warm", "scene": {"domain": {"min": [0, 0, 0], "max": [100, 100, 50]}}, '
+    '"profile": {"kind": "log"}, "sources": [{"position": [50, 50, 2]}], '
+    '"rays": {"elevation_deg": {"min": -5, "max": 5, "count": 3}, "max_time_s": 0.5, "max_reflections": 1}}'
+)
 
 
 class ValidationTimeout(Exception):
@@ -187,11 +193,13 @@ def _serve(conn: Connection) -> None:
 
     with contextlib.suppress(OSError):
         os.nice(5)
-    with contextlib.suppress(Exception):  # the imports of every stage, before any time limit runs
-        import bentray.scenes.cost  # noqa: F401
+    with contextlib.suppress(Exception):  # the imports and first calls of the stages, before any time limit
         import bentray.scenes.job_checks  # noqa: F401
-        import bentray.scenes.schema  # noqa: F401
         import bentray.service.uploads  # noqa: F401
+
+        warm = JobLimits(2_000_000, 5_000_000, 2**33, 2e10, 5e10, 1)
+        check_job_text(_WARM_JOB, warm)
+        check_job_scene(_WARM_JOB, os.getcwd(), [], 600.0)
     try:
         conn.send(_READY)
     except (OSError, ValueError):
