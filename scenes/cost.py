@@ -20,6 +20,20 @@ elementary operations, with the formula stated where it is computed:
   ``rays x crossings x cells per crossing`` with cells per crossing = domain diagonal / (largest extent
   / 200) (the tets default smallest cell; adaptive sizings make few cells where the medium is smooth, so
   ``solver.d_min_m`` does not enter), capped by ``max_steps``.
+- ``mesh_seconds``: the media-mesh build (:func:`estimate_mesh`), ``cells x MESH_SECONDS_PER_CELL`` of
+  the mesher the job gets (measured on a 2-core machine shared with other work, 2026-12-01,
+  ``python -m bentray.engine.bench.mesh_time``: build time was proportional to the cell count, see
+  :data:`MESH_SECONDS_PER_CELL`). Cells, from the job and the engine's own sizing code, nothing meshed:
+  tets (a profile that varies in 3D, or the ridge wind over flat ground): the FCC resampling's own
+  up-front point count (``engine/mesh/fcc.estimate_point_count`` of the sizing field that
+  ``engine/media.py`` computes, at most the resampler's 2M points) x TET_CELLS_PER_POINT; terrain
+  (terrain, buildings or ground zones): 3 tets per prism, ``2 x area / h^2`` triangles (h: the terrain's
+  own spacing or ``solver.d_max_m`` if smaller, else largest extent / 32; x BUILDINGS_TRIANGLE_FACTOR
+  with buildings) x the layers the curvature (or gradient) rule gives on the column at the domain
+  centre. Slabs and uniform media (no 3D mesh),
+  obstacle meshes (fTetWild) and exact-media baselines are not estimated (0 s). A profile or terrain
+  read from a file is estimated only when the file is at hand (``base_dir``; the service checks
+  again once the files are uploaded).
 
 :func:`cost_problems` compares them with :class:`CostLimits` and returns one ``field.path: reason``
 line per exceeded budget, with the estimate and the limit in the text.
@@ -30,15 +44,22 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
+from dataclasses import field as dc_field
+from pathlib import Path
 from typing import Any
 
 __all__ = [
+    "DEFAULT_MESH_SECONDS",
     "DEFAULT_PATH_RAYS",
+    "MESH_SECONDS_PER_CELL",
     "CostEstimate",
     "CostLimits",
+    "MeshEstimate",
     "cost_problems",
     "estimate_cost",
+    "estimate_mesh",
     "machine_memory_bytes",
+    "mesh_problems",
     "records_paths",
 ]
 
@@ -46,6 +67,39 @@ PATH_SAMPLE_BYTES = 104  # measured, see the module docstring
 RAY_STATE_BYTES = 200  # final position, direction, time, length, status, indices, launch angles
 DEFAULT_PATH_RAYS = 2_000  # paths are recorded by default only up to this many rays (~83 MB at 400 samples)
 _C_MAX_M_S = 1000.0  # the media check's upper sound speed (scenes.media_checks.C_MAX_M_S)
+# Media-mesh build seconds per cell, measured with engine/bench/mesh_time.py on 2 shared cores (fit data
+# in the README, "Cost model"): least squares t = -0.34 s + 94.9 us x cells (tets, 3.9k-523k cells) and
+# t = 0.67 s + 15.6 us x cells (terrain, 391k-5.1M cells); the largest per-cell time above 10k cells
+# rounded up, is the rate used (98 us and 19.4 us).
+MESH_SECONDS_PER_CELL = {"tets": 100e-6, "terrain": 20e-6}
+# Tets built per point of fcc.estimate_point_count (boundary samples included): measured 5.9-6.2.
+TET_CELLS_PER_POINT = 6.0
+# Buildings refine the terrain mesher's triangles along walls: measured 1.52x on christmas (40 buildings).
+BUILDINGS_TRIANGLE_FACTOR = 1.6
+ESTIMATE_NODES = 100_000  # sizing-grid nodes of the tets estimate (the engine's grid: up to 1e6)
+FCC_MAX_POINTS = 2_000_000  # engine/mesh/fcc.fcc_resample's max_points: more is refused by the mesher
+DEFAULT_MESH_SECONDS = 600.0  # default budget of one job's mesh build (BENTRAY_MAX_MESH_SECONDS)
+# profile kinds that vary with z only (engine Profile.stratified): slabs, no 3D mesh, over flat ground
+_STRATIFIED_KINDS = (
+    "homogeneous",
+    "linear_c",
+    "linear_n",
+    "linear_n2",
+    "log",
+    "mirage_inferior",
+    "mirage_superior",
+    "table",
+)
+
+
+def _default_mesh_seconds() -> float:
+    """BENTRAY_MAX_MESH_SECONDS if set to a positive number (the CLI reads it too), else the default."""
+    raw = os.environ.get("BENTRAY_MAX_MESH_SECONDS", "").strip()
+    try:
+        value = float(raw) if raw else DEFAULT_MESH_SECONDS
+    except ValueError:
+        return DEFAULT_MESH_SECONDS
+    return value if math.isfinite(value) and value > 0 else DEFAULT_MESH_SECONDS
 
 
 def records_paths(job: Any) -> bool:
@@ -75,6 +129,7 @@ class CostLimits:
     field_deposits: float = 2e10
     ray_steps: float = 5e10
     threads: int = os.cpu_count() or 1
+    mesh_seconds: float = dc_field(default_factory=_default_mesh_seconds)
 
 
 @dataclass(frozen=True)
@@ -133,12 +188,217 @@ def estimate_cost(job: Any, threads: int) -> CostEstimate:
     return CostEstimate(paths, int(field_bytes), n_rays * RAY_STATE_BYTES, float(deposits), float(steps))
 
 
+@dataclass(frozen=True)
+class MeshEstimate:
+    """The media-mesh build of a job: mesher ("tets", "terrain", or "none" when no 3D mesh is built or it
+    is not estimated), estimated cells and seconds, and how the cells were counted (``basis``).
+    ``known`` is False when a file the estimate needs was not at hand."""
+
+    mesher: str
+    cells: float
+    seconds: float
+    basis: str
+    known: bool = True
+
+
+def _needs_file(spec: Any) -> bool:
+    """True when a profile spec (or its base) reads a file (``path``)."""
+    while spec is not None:
+        if getattr(spec, "path", None) is not None:
+            return True
+        spec = getattr(spec, "base", None)
+    return False
+
+
+def _none(basis: str, known: bool = True) -> MeshEstimate:
+    return MeshEstimate("none", 0.0, 0.0, basis, known)
+
+
+def _mesh_time(mesher: str, cells: float, basis: str) -> MeshEstimate:
+    return MeshEstimate(mesher, float(cells), float(cells) * MESH_SECONDS_PER_CELL[mesher], basis)
+
+
+def estimate_mesh(job: Any, base_dir: str | Path | None = None) -> MeshEstimate:
+    """Cells and build seconds of the job's media mesh (module docstring); nothing is meshed.
+
+    ``base_dir``: the folder of the files the job names (None: files are not read, and a job whose
+    profile or terrain is a file gets ``known=False``).
+    """
+    import numpy as np
+
+    from bentray.engine.constants import CURVE_QUANTITY
+    from bentray.engine.errors import JobInputError
+    from bentray.engine.media import DEFAULT_SLAB_D_MIN, DEFAULT_TET_D_MAX_FRACTION, _sizing_params
+
+    solver = job.solver
+    if solver.is_baseline and solver.media == "exact":
+        return _none("exact media: one box cell")
+    box = job.scene.box
+    lo = np.asarray(box.min, float)
+    hi = np.asarray(box.max, float)
+    ext = hi - lo
+    extent = float(np.max(ext))
+    quantity = CURVE_QUANTITY[solver.mesh_curve]
+    scene = job.scene
+    surfaces = _builtin_surfaces(scene)
+    if (surfaces is not None and surfaces.obstacles) or (scene.buildings is not None and _has_obstacles(scene)):
+        return _none("obstacle meshes (fTetWild) are not estimated")
+    have_files = base_dir is not None
+    profile = wind = None
+    if not _needs_file(job.profile) or have_files:
+        profile, wind = _media(job, base_dir)
+    if scene.has_surfaces:
+        native = None
+        if surfaces is not None and surfaces.terrain is not None:
+            from bentray.engine.media import _native_spacing
+
+            native = _native_spacing(surfaces)
+        elif scene.terrain is not None:
+            if not have_files:
+                return _none("terrain file: estimated once it is uploaded", known=False)
+            native = _terrain_file_spacing(job, base_dir)
+        h = native if native is not None else extent * DEFAULT_TET_D_MAX_FRACTION / 4.0
+        if solver.d_max_m is not None:
+            h = min(h, float(solver.d_max_m))
+        triangles = min(2.0 * float(ext[0] * ext[1]) / (h * h), 2.0 * FCC_MAX_POINTS)
+        if scene.buildings is not None or (surfaces is not None and surfaces.footprints):
+            triangles *= BUILDINGS_TRIANGLE_FACTOR
+        if profile is None:
+            return _none("profile file: estimated once it is uploaded", known=False)
+        try:
+            _, tol, _, d_max = _sizing_params(solver, "tets", extent)
+        except JobInputError:
+            return _none("invalid sizing (refused by the mesher)")
+        v_min = solver.d_min_m if solver.d_min_m is not None else DEFAULT_SLAB_D_MIN * 1e3
+        layers = _column_layers(profile, wind, solver, quantity, lo, hi, tol, v_min, d_max)
+        cells = 3.0 * triangles * layers
+        return _mesh_time("terrain", cells, f"{triangles:,.0f} triangles (spacing {h:.3g} m) x {layers} layers x 3")
+    kind = str(getattr(job.profile, "kind", ""))
+    stratified = kind in _STRATIFIED_KINDS and (job.wind is None or job.wind.kind != "ridge")
+    if solver.representation in ("uniform", "slabs") or (solver.representation == "auto" and stratified):
+        return _none("no 3D mesh (uniform or slab media)")
+    if profile is None:
+        return _none("profile file: estimated once it is uploaded", known=False)
+    from bentray.engine.mesh.fcc import FCC_DENSITY, clamped_spacing, estimate_point_count
+    from bentray.engine.mesh.sizing import sizing_grid_spacing
+    from bentray.engine.wind import sizing_quantity
+
+    try:
+        rule, tol, d_min, d_max = _sizing_params(solver, "tets", extent)
+    except JobInputError:
+        return _none("invalid sizing (refused by the mesher)")
+
+    def quantity_at(p: Any) -> Any:
+        return profile.quantity(quantity, p)
+
+    size_q = sizing_quantity(profile.sound_speed, profile.c_ref, wind, quantity) if wind is not None else quantity_at
+    size_n = (
+        sizing_quantity(profile.sound_speed, profile.c_ref, wind, "n")
+        if wind is not None
+        else (lambda p: profile.quantity("n", p))
+    )
+    native_step = getattr(profile, "spacing", None)
+    grid_step = float(np.min(native_step)) if native_step is not None and np.ndim(native_step) == 1 else None
+    # the engine's sizing grid has up to 1e6 nodes; ESTIMATE_NODES keep this estimate well under a second
+    coarse = float(np.prod(ext) / ESTIMATE_NODES) ** (1.0 / 3.0)
+    grid_step = max(grid_step if grid_step is not None else 0.5 * d_min, coarse)
+    spacing = sizing_grid_spacing(
+        size_q, size_n, lo, hi, rule=rule, tolerance=tol, d_min=d_min, d_max=d_max, grid_step=grid_step
+    )
+    points = estimate_point_count(lo, hi, clamped_spacing(spacing, d_min, d_max), FCC_DENSITY)
+    capped = min(points, float(FCC_MAX_POINTS))
+    return _mesh_time(
+        "tets",
+        capped * TET_CELLS_PER_POINT,
+        f"{points:,.0f} FCC points (sizing {rule} {tol:g}, d {d_min:.3g}-{d_max:.3g} m) x {TET_CELLS_PER_POINT:g}",
+    )
+
+
+def _builtin_surfaces(scene: Any) -> Any:
+    if scene.builtin is None:
+        return None
+    from bentray.scenes.library.registry import get_builtin
+
+    return get_builtin(scene.builtin, scene.resolution).surfaces
+
+
+def _has_obstacles(scene: Any) -> bool:
+    return bool(getattr(scene.buildings, "obstacles", None))
+
+
+def _media(job: Any, base_dir: str | Path | None) -> tuple[Any, Any]:
+    from bentray.engine.stages import StageLog, stage_profile
+
+    try:
+        return stage_profile(job, Path(base_dir) if base_dir is not None else None, StageLog())
+    except (ValueError, OSError):  # a file that cannot be read: its own check says why
+        return None, None
+
+
+def _terrain_file_spacing(job: Any, base_dir: str | Path | None) -> float | None:
+    from bentray.engine.media import _native_spacing
+    from bentray.engine.stages import load_surfaces
+
+    try:
+        surfaces = load_surfaces(job, Path(base_dir) if base_dir is not None else None)
+    except (ValueError, OSError):
+        return None
+    return _native_spacing(surfaces) if surfaces is not None else None
+
+
+def _column_layers(
+    profile: Any, wind: Any, solver: Any, quantity: str, lo: Any, hi: Any, tol: float, v_min: float, d_max: float
+) -> int:
+    """Layers of the terrain mesher's column (engine/media.build_terrain_media's rule, same parameters)."""
+    import numpy as np
+
+    from bentray.engine.mesh.sizing import curvature_layers, gradient_layers
+    from bentray.engine.wind import sizing_quantity
+
+    column = getattr(profile, "base", profile)
+    qfn = sizing_quantity(profile.sound_speed, profile.c_ref, wind, quantity) if wind is not None else None
+    centre = 0.5 * (lo + hi)
+
+    def at(z: Any, fn: Any) -> Any:
+        z = np.atleast_1d(np.asarray(z, float))
+        return fn(np.column_stack([np.full(len(z), centre[0]), np.full(len(z), centre[1]), z]))
+
+    try:
+        if solver.effective_sizing == "gradient":
+            levels = gradient_layers(
+                lo[2], hi[2], lambda z: at(z, lambda p: profile.quantity("n", p)), epsilon=tol, d_min=v_min, d_max=d_max
+            )
+        else:
+            fn = qfn or (lambda p: column.quantity(quantity, p))
+            levels = curvature_layers(lo[2], hi[2], lambda z: at(z, fn), delta=tol, d_min=v_min, d_max=d_max)
+    except ValueError:  # more than MAX_LAYERS: the mesher refuses it too
+        return 2_000_000
+    return max(len(levels) - 1, 1)
+
+
+def mesh_problems(job: Any, limits: CostLimits, base_dir: str | Path | None = None) -> list[str]:
+    """A ``field.path: reason`` line when the estimated mesh build exceeds ``limits.mesh_seconds``."""
+    est = estimate_mesh(job, base_dir)
+    if not est.known or est.seconds <= limits.mesh_seconds:
+        return []
+    if est.mesher == "tets":
+        field, hint = "solver.d_min_m", "raise solver.d_min_m or the sizing tolerance (solver.delta / solver.epsilon)"
+    else:
+        field, hint = "solver.d_max_m", "use a coarser solver.d_max_m, a coarser terrain or a smaller domain"
+    per = 1e6 * MESH_SECONDS_PER_CELL[est.mesher]
+    return [
+        f"{field}: the {est.mesher} mesh needs an estimated {est.cells:.3g} cells ({est.basis}), about "
+        f"{est.seconds:.3g} s to build at {per:g} us per cell; the limit is {limits.mesh_seconds:g} s: {hint}"
+    ]
+
+
 def _gb(n: float) -> str:
     return f"{n / 2**30:.3g} GiB"
 
 
 def cost_problems(job: Any, limits: CostLimits) -> list[str]:
-    """``field.path: reason`` lines for every budget of ``limits`` the job's estimate exceeds."""
+    """``field.path: reason`` lines for every budget of ``limits`` the job's estimate exceeds (the mesh
+    build: only where no file is needed, see :func:`mesh_problems`)."""
     est = estimate_cost(job, limits.threads)
     lines: list[str] = []
     if est.memory_bytes > limits.memory_bytes:
@@ -167,4 +427,5 @@ def cost_problems(job: Any, limits: CostLimits) -> list[str]:
             f"cell); the limit is {limits.ray_steps:.3g}: use fewer rays, fewer reflections, a shorter "
             "max_time_s or a larger solver.d_min_m"
         )
+    lines.extend(mesh_problems(job, limits))
     return lines

@@ -17,6 +17,7 @@ Environment variables (all optional):
 | ``BENTRAY_MAX_JOB_MEMORY_BYTES`` | min(8 GiB, half this machine) | estimated memory of one job (paths, field, rays) |
 | ``BENTRAY_MAX_FIELD_DEPOSITS`` | 2e10 | estimated field samples of one job (scenes/cost.py) |
 | ``BENTRAY_MAX_RAY_STEPS`` | 5e10 | estimated cell crossings of one job (scenes/cost.py) |
+| ``BENTRAY_MAX_MESH_SECONDS`` | 600 | estimated media-mesh build of one job (scenes/cost.py; ``bentray run`` too) |
 | ``BENTRAY_VALIDATION_SECONDS`` | 10 | time limit of submit-time validation (its own process); longer -> 422 |
 | ``BENTRAY_RETRY_AFTER_SECONDS`` | 30 | ``Retry-After`` of a 429 (queue full) |
 | ``BENTRAY_DASK_SCHEDULER`` | none | Dask scheduler (``tcp://host:8786``) for the ray batches (none: in-process) |
@@ -35,7 +36,7 @@ from pathlib import Path
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
-from bentray.scenes.cost import machine_memory_bytes
+from bentray.scenes.cost import DEFAULT_MESH_SECONDS, machine_memory_bytes
 
 __all__ = ["LOCAL_OWNER", "Settings", "SettingsError", "check_bind_host", "owner_of_key"]
 
@@ -83,6 +84,7 @@ class Settings(BaseModel):
     max_job_memory_bytes: int = Field(default_factory=_default_job_memory, ge=2**20)
     max_field_deposits: float = Field(default=2e10, gt=0)
     max_ray_steps: float = Field(default=5e10, gt=0)
+    max_mesh_seconds: float = Field(default=DEFAULT_MESH_SECONDS, gt=0)
     # Submit-time validation runs in helper processes with this time limit (a longer one -> 422).
     validation_seconds: float = Field(default=10.0, gt=0, le=600)
     validation_processes: int = Field(default=2, ge=1, le=64)
@@ -142,6 +144,7 @@ class Settings(BaseModel):
             "BENTRAY_MAX_JOB_MEMORY_BYTES": "max_job_memory_bytes",
             "BENTRAY_MAX_FIELD_DEPOSITS": "max_field_deposits",
             "BENTRAY_MAX_RAY_STEPS": "max_ray_steps",
+            "BENTRAY_MAX_MESH_SECONDS": "max_mesh_seconds",
             "BENTRAY_VALIDATION_SECONDS": "validation_seconds",
             "BENTRAY_RETRY_AFTER_SECONDS": "retry_after_seconds",
             "BENTRAY_DASK_SCHEDULER": "dask_scheduler",

@@ -4,12 +4,15 @@ Validating a job is CPU work whose cost depends on the input (pydantic over a la
 checks, reading an uploaded terrain, sampling the medium): it runs in a long-lived helper process
 (multiprocessing ``spawn``) that the API thread waits on for at most ``Settings.validation_seconds``.
 A helper that overruns is killed (SIGKILL) and replaced; the request is answered 422 with the limit in
-the text. Two stages, each one round trip:
+the text. A new helper imports the validation modules first and says when it is ready (up to
+:data:`HELPER_START_S`, its own allowance): the time limit is the validation's, never the helper's
+start-up (a cold helper on a loaded machine took over 10 s to import them). Two stages, each one round trip:
 
 1. :func:`check_job_text`: the job JSON -> schema, server limits and the cost model -> the job's name
    and the files it names (the API then places those files in the job's inputs folder);
 2. :func:`check_job_scene`: uploaded files read as their kind, then the scene checks of
-   :func:`bentray.scenes.job_checks.scene_problems` (overlaps, sources below the ground, the medium).
+   :func:`bentray.scenes.job_checks.scene_problems` (overlaps, sources below the ground, the medium),
+   and the mesh-time estimate of a job whose profile or terrain is a file (stage 1 could not read it).
 
 Results are plain dicts (``{"ok": bool, "lines": [...], "code": str, ...}``), never exceptions.
 """
@@ -30,6 +33,16 @@ from typing import Any
 __all__ = ["JobLimits", "ValidationBusy", "ValidationPool", "ValidationTimeout", "check_job_scene", "check_job_text"]
 
 
+HELPER_START_S = 120.0  # a new helper's imports: waited for apart from the validation time limit
+_READY = "ready"
+# validated once by a new helper before it says it is ready (first calls import and build lazily)
+_WARM_JOB = (
+    '{"name": "warm", "scene": {"domain": {"min": [0, 0, 0], "max": [100, 100, 50]}}, '
+    '"profile": {"kind": "log"}, "sources": [{"position": [50, 50, 2]}], '
+    '"rays": {"elevation_deg": {"min": -5, "max": 5, "count": 3}, "max_time_s": 0.5, "max_reflections": 1}}'
+)
+
+
 class ValidationTimeout(Exception):
     """The validation helper did not answer within the time limit (it was killed)."""
 
@@ -48,6 +61,7 @@ class JobLimits:
     max_field_deposits: float
     max_ray_steps: float
     threads: int
+    max_mesh_seconds: float = 600.0  # bentray.scenes.cost.DEFAULT_MESH_SECONDS
 
 
 # ---------------------------------------------------------------------------------------------
@@ -75,10 +89,11 @@ def _file_refs(value: Any, loc: tuple[str | int, ...] = ()) -> list[tuple[str, s
 
 
 def check_job_text(text: str, limits: JobLimits) -> dict[str, Any]:
-    """Stage 1: parse and validate; ``{"ok": True, "name", "refs": [(field, name)], "n_rays"}`` or an error."""
+    """Stage 1: parse and validate; ``{"ok": True, "name", "refs": [(field, name)], "n_rays", "mesh_known"}``
+    or an error. ``mesh_known`` False: the mesh-time estimate needs the job's files (stage 2 makes it)."""
     from pydantic import ValidationError
 
-    from bentray.scenes.cost import CostLimits, cost_problems
+    from bentray.scenes.cost import CostLimits, cost_problems, estimate_mesh
     from bentray.scenes.schema import JobFileError, format_validation_error, parse_job_text
 
     try:
@@ -107,17 +122,23 @@ def check_job_text(text: str, limits: JobLimits) -> dict[str, Any]:
                 field_deposits=limits.max_field_deposits,
                 ray_steps=limits.max_ray_steps,
                 threads=limits.threads,
+                mesh_seconds=limits.max_mesh_seconds,
             ),
         )
     if lines:
         return _error(lines, "over_limit")
     refs = _file_refs(job.model_dump(mode="json", exclude_none=True))
-    return {"ok": True, "name": job.name, "refs": refs, "n_rays": job.n_rays}
+    known = estimate_mesh(job).known
+    return {"ok": True, "name": job.name, "refs": refs, "n_rays": job.n_rays, "mesh_known": known}
 
 
-def check_job_scene(text: str, inputs: str, uploads: list[tuple[str, str, str]]) -> dict[str, Any]:
+def check_job_scene(
+    text: str, inputs: str, uploads: list[tuple[str, str, str]], mesh_seconds: float | None = None
+) -> dict[str, Any]:
     """Stage 2: each uploaded (field, name, kind) read as its kind, then the scene checks with files
-    in ``inputs``; ``{"ok": True}`` or an error (``invalid_file`` / ``invalid_job``)."""
+    in ``inputs``, then (``mesh_seconds`` given) the mesh-time estimate with those files;
+    ``{"ok": True}`` or an error (``invalid_file`` / ``invalid_job`` / ``over_limit``)."""
+    from bentray.scenes.cost import CostLimits, mesh_problems
     from bentray.scenes.job_checks import scene_problems
     from bentray.scenes.schema import parse_job_text
     from bentray.service.uploads import check_upload
@@ -133,7 +154,13 @@ def check_job_scene(text: str, inputs: str, uploads: list[tuple[str, str, str]])
     job = parse_job_text(text, origin="job")
     problems = scene_problems(job, inputs)
     problems = [_strip_folder(line, inputs) for line in problems]
-    return _error(problems, "invalid_job") if problems else {"ok": True}
+    if problems:
+        return _error(problems, "invalid_job")
+    if mesh_seconds is not None:
+        over = mesh_problems(job, CostLimits(mesh_seconds=mesh_seconds), inputs)
+        if over:
+            return _error([_strip_folder(line, inputs) for line in over], "over_limit")
+    return {"ok": True}
 
 
 def check_upload_file(path: str, kind: str) -> dict[str, Any]:
@@ -166,6 +193,17 @@ def _serve(conn: Connection) -> None:
 
     with contextlib.suppress(OSError):
         os.nice(5)
+    with contextlib.suppress(Exception):  # the imports and first calls of the stages, before any time limit
+        import bentray.scenes.job_checks  # noqa: F401
+        import bentray.service.uploads  # noqa: F401
+
+        warm = JobLimits(2_000_000, 5_000_000, 2**33, 2e10, 5e10, 1)
+        check_job_text(_WARM_JOB, warm)
+        check_job_scene(_WARM_JOB, os.getcwd(), [], 600.0)
+    try:
+        conn.send(_READY)
+    except (OSError, ValueError):
+        return
     while True:
         try:
             stage, args = conn.recv()
@@ -194,6 +232,15 @@ class _Helper:
         self.process: BaseProcess = ctx.Process(target=_serve, args=(child,), name="bentray-validate", daemon=True)
         self.process.start()
         child.close()
+        self.ready = False  # True once the helper said it finished its imports
+
+    def wait_ready(self, timeout_s: float) -> bool:
+        """Wait up to ``timeout_s`` for the helper's ready message; False if it did not come."""
+        if not self.ready:
+            if not self.conn.poll(timeout_s):
+                return False
+            self.ready = self.conn.recv() == _READY
+        return self.ready
 
     def kill(self) -> None:
         with contextlib.suppress(Exception):
@@ -260,6 +307,12 @@ class ValidationPool:
         helper = self._take(deadline + self.timeout_s)  # waiting for a free helper has its own allowance
         deadline = max(deadline, time.monotonic() + 0.5 * self.timeout_s)
         try:
+            if not helper.ready:  # a new helper: its start-up has its own allowance, then the limit runs
+                if not helper.wait_ready(HELPER_START_S):
+                    helper.kill()
+                    self._give_back(None)
+                    raise ValidationBusy(f"a validation helper did not start within {HELPER_START_S:g} s")
+                deadline = time.monotonic() + self.timeout_s
             helper.conn.send((stage, args))
             if not helper.conn.poll(max(deadline - time.monotonic(), 0.0)):
                 raise ValidationTimeout(f"validation took longer than {self.timeout_s:g} s")

@@ -191,17 +191,20 @@ def _limits(services: Services) -> JobLimits:
         max_field_deposits=s.max_field_deposits,
         max_ray_steps=s.max_ray_steps,
         threads=s.threads_per_job,
+        max_mesh_seconds=s.max_mesh_seconds,
     )
 
 
 def _validate(services: Services, text: str, owner: str, uploaded: dict[str, Path], inputs: Path) -> str:
     """Both validation stages (helper process, time limit) around placing the inputs; the job's name."""
     try:
-        first = services.validator.run("text", text, _limits(services))
+        limits = _limits(services)
+        first = services.validator.run("text", text, limits)
         if not first["ok"]:
             raise InvalidInputError.from_lines(first["lines"], code=first["code"])
         checks = _place_inputs(services, [tuple(r) for r in first["refs"]], owner, uploaded, inputs)
-        second = services.validator.run("scene", text, str(inputs), checks)
+        mesh_seconds = None if first.get("mesh_known", True) else limits.max_mesh_seconds
+        second = services.validator.run("scene", text, str(inputs), checks, mesh_seconds)
     except ValidationTimeout as exc:
         raise InvalidInputError.from_lines([f"job: {exc}; the job is refused"], code="validation_timeout") from None
     except ValidationBusy as exc:
@@ -221,7 +224,7 @@ def _validate(services: Services, text: str, owner: str, uploaded: dict[str, Pat
 async def submit_job(request: Request, response: Response, services: ServicesDep, owner: OwnerDep) -> JobInfo:
     """Queue a job (the job JSON of ``scenes/``); files it names come with it or from assets.
 
-    Validated before it is queued: schema, server limits, the cost model's memory and work budgets,
+    Validated before it is queued: schema, server limits, the cost model's memory, work and mesh-time budgets,
     the scene (overlaps, sources above the ground) and the medium (sound speed within the physical
     range); any problem is a 422 naming the field.
     """

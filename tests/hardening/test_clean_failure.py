@@ -106,3 +106,15 @@ def test_busy_validation_helpers_answer_busy_not_a_hang():
         pool._give_back(held)
     finally:
         pool.close()
+
+
+def test_a_cold_helper_start_is_not_counted_in_the_time_limit():
+    """A new helper's imports took over 10 s on a loaded machine (30 concurrent submits answered 422
+    validation_timeout); the limit is the validation's own, the start-up has its own allowance."""
+    pool = ValidationPool(timeout_s=0.5, size=1)  # well below the helper's import time
+    try:
+        result = pool.run("text", json.dumps(base_job()), LIMITS)
+        assert result["ok"], result
+        assert pool._idle and pool._idle[0].ready
+    finally:
+        pool.close()
