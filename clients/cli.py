@@ -137,7 +137,8 @@ def _check(job: Job, job_path: Path) -> None:
         memory_bytes=int(0.8 * machine) if machine > 0 else CostLimits().memory_bytes,
         threads=int(numba.get_num_threads()),
     )
-    lines = scene_problems(job, job_path.absolute().parent) + cost_problems(job, limits)
+    base = job_path.absolute().parent
+    lines = scene_problems(job, base) + cost_problems(job, limits, base)
     if lines:
         raise CommandError(f"{job_path}: invalid job ({len(lines)} error(s)):\n" + "\n".join(lines), code=2)
 

@@ -396,9 +396,10 @@ def _gb(n: float) -> str:
     return f"{n / 2**30:.3g} GiB"
 
 
-def cost_problems(job: Any, limits: CostLimits) -> list[str]:
+def cost_problems(job: Any, limits: CostLimits, base_dir: str | Path | None = None) -> list[str]:
     """``field.path: reason`` lines for every budget of ``limits`` the job's estimate exceeds (the mesh
-    build: only where no file is needed, see :func:`mesh_problems`)."""
+    build: only where no file is needed unless ``base_dir`` resolves the job's files, see
+    :func:`mesh_problems`)."""
     est = estimate_cost(job, limits.threads)
     lines: list[str] = []
     if est.memory_bytes > limits.memory_bytes:
@@ -427,5 +428,5 @@ def cost_problems(job: Any, limits: CostLimits) -> list[str]:
             f"cell); the limit is {limits.ray_steps:.3g}: use fewer rays, fewer reflections, a shorter "
             "max_time_s or a larger solver.d_min_m"
         )
-    lines.extend(mesh_problems(job, limits))
+    lines.extend(mesh_problems(job, limits, base_dir))
     return lines
