@@ -209,6 +209,12 @@ def run(quick: bool) -> Section:
         "ray-density estimate. Mean |dB| outside interference dips; seconds: trace + field stages, warm, "
         "one thread."
     )
+    if gfpe_tl is None:
+        sec.text.append(
+            "The GFPE case was skipped: its oracle lives in the repository's tests package "
+            "(tests/reference/gfpe.py), which this interpreter cannot import; run the bench from a source "
+            "checkout with `python -m bentray.clients.cli bench ...` in the repository root."
+        )
     sec.tables.append(table)
     sec.tables.append(paraxial_cost(quick))
     panel = {
