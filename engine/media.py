@@ -122,6 +122,33 @@ def _n_from_quantity(quantity: str) -> Callable[[np.ndarray], np.ndarray]:
     return lambda m: m
 
 
+@dataclass(frozen=True)
+class _MediaRequest:
+    """What ``build_media`` resolved for one job, handed to the representation builders.
+
+    profile : the medium; quantity : the traced quantity ("n2", "c" or "n"); solver : the job's Solver;
+    lo, hi : (3,) float64 domain corners, metres, world frame; representation, reason : from
+    ``choose_representation``; ground, top : boundary tags ("reflect" / "open"); extent : largest domain
+    side, metres; t0 : perf_counter at the start of the build (build_time_s counts from it);
+    size_q, size_n : the downwind effective medium's quantity and n, xyz (N, 3) -> (N,), used for sizing
+    with wind (None: size on the profile itself).
+    """
+
+    profile: Profile
+    quantity: str
+    solver: Any
+    lo: np.ndarray
+    hi: np.ndarray
+    representation: str
+    reason: str
+    ground: str
+    top: str
+    extent: float
+    t0: float
+    size_q: Callable[[np.ndarray], np.ndarray] | None = None
+    size_n: Callable[[np.ndarray], np.ndarray] | None = None
+
+
 def build_media(
     profile: Profile,
     curve: str,
@@ -146,71 +173,92 @@ def build_media(
     size_n = sizing_quantity(profile.sound_speed, profile.c_ref, wind, "n") if wind is not None else None
     extent = float(np.max(hi - lo))
     t0 = time.perf_counter()
+    req = _MediaRequest(profile, quantity, solver, lo, hi, representation, reason, ground, top, extent, t0,
+                        size_q, size_n)  # fmt: skip
     if representation in ("uniform", "slabs"):
-        centre = 0.5 * (lo + hi)
+        return _build_layers(req)
+    return _build_tets(req)
 
-        def m_at_z(z: np.ndarray) -> np.ndarray:
-            z = np.atleast_1d(np.asarray(z, float))
-            pts = np.column_stack([np.full(len(z), centre[0]), np.full(len(z), centre[1]), z])
-            return profile.quantity(quantity, pts)
 
-        def column(z: np.ndarray) -> np.ndarray:
-            z = np.atleast_1d(np.asarray(z, float))
-            return np.column_stack([np.full(len(z), centre[0]), np.full(len(z), centre[1]), z])
+def _column_points(centre: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Points (N, 3) metres on the vertical through ``centre`` (x, y) at heights z (N,) (a scalar is one)."""
+    z = np.atleast_1d(np.asarray(z, float))
+    return np.column_stack([np.full(len(z), centre[0]), np.full(len(z), centre[1]), z])
+
+
+def _layer_levels(req: _MediaRequest, m_at_z: Callable[[np.ndarray], np.ndarray], stats: dict[str, Any]) -> np.ndarray:
+    """Slab interfaces z (L + 1,) metres from lo z to hi z: two for ``uniform``, else the curvature rule on
+    the (sizing) quantity or the gradient rule on n along the domain's central column; records the
+    sizing rule and its parameters in ``stats``."""
+    lo, hi = req.lo, req.hi
+    if req.representation == "uniform":
+        return np.array([lo[2], hi[2]])
+    centre = 0.5 * (lo + hi)
+    rule, tol, d_min, d_max = _sizing_params(req.solver, "slabs", hi[2] - lo[2])
+    if rule == "gradient":
+        size_n = req.size_n
+
+        def n_at_z(z: np.ndarray) -> np.ndarray:
+            col = _column_points(centre, z)
+            return size_n(col) if size_n is not None else req.profile.quantity("n", col)
+
+        z_levels = gradient_layers(lo[2], hi[2], n_at_z, epsilon=tol, d_min=d_min, d_max=d_max)
+    else:
+        size_q = req.size_q
 
         def size_m_at_z(z: np.ndarray) -> np.ndarray:
-            return size_q(column(z)) if size_q is not None else m_at_z(z)
+            return size_q(_column_points(centre, z)) if size_q is not None else m_at_z(z)
 
-        stats: dict[str, Any] = {}
-        if representation == "uniform":
-            z_levels = np.array([lo[2], hi[2]])
-        else:
-            rule, tol, d_min, d_max = _sizing_params(solver, "slabs", hi[2] - lo[2])
-            if rule == "gradient":
+        z_levels = curvature_layers(lo[2], hi[2], size_m_at_z, delta=tol, d_min=d_min, d_max=d_max)
+    stats.update({"sizing_rule": rule, "tolerance": tol, "d_min_m": d_min, "d_max_m": d_max})
+    return z_levels
 
-                def n_at_z(z: np.ndarray) -> np.ndarray:
-                    return size_n(column(z)) if size_n is not None else profile.quantity("n", column(z))
 
-                z_levels = gradient_layers(lo[2], hi[2], n_at_z, epsilon=tol, d_min=d_min, d_max=d_max)
-            else:
-                z_levels = curvature_layers(lo[2], hi[2], size_m_at_z, delta=tol, d_min=d_min, d_max=d_max)
-            stats.update({"sizing_rule": rule, "tolerance": tol, "d_min_m": d_min, "d_max_m": d_max})
-        mesh = build_slab_mesh(lo, hi, z_levels, m_at_z, ground=ground, top=top)
-        thickness = np.diff(z_levels)
-        stats.update(
-            {
-                "cells": int(len(thickness)),
-                "points": int(4 * len(z_levels)),
-                "layers": int(len(thickness)),
-                "min_cell_size_m": float(thickness.min()),
-                "median_cell_size_m": float(np.median(thickness)),
-                "max_cell_size_m": float(thickness.max()),
-                "build_time_s": time.perf_counter() - t0,
-            }
-        )
-        if representation == "slabs":
-            stats["approximation_error_eq14"] = relative_error_1d(z_levels, m_at_z, _n_from_quantity(quantity))
-        return Media(
-            representation=representation,
-            reason=reason,
-            quantity=quantity,
-            mesh=mesh,
-            locate=lambda xyz: locate_in_slabs(z_levels, xyz),
-            geometry=lambda: slab_geometry(lo, hi, mesh, z_levels, quantity),
-            stats=stats,
-        )
-    return _build_tets(
-        profile, quantity, solver, lo, hi, representation, reason, ground, top, extent, t0, size_q, size_n
+def _build_layers(req: _MediaRequest) -> Media:
+    """``uniform`` (one box cell) or ``slabs`` (horizontal layers graded by the sizing rule): the profile
+    sampled on the domain's central column, metres; stats with the cell sizes and, for slabs, Eq. 14."""
+    lo, hi, quantity = req.lo, req.hi, req.quantity
+    centre = 0.5 * (lo + hi)
+
+    def m_at_z(z: np.ndarray) -> np.ndarray:
+        return req.profile.quantity(quantity, _column_points(centre, z))
+
+    stats: dict[str, Any] = {}
+    z_levels = _layer_levels(req, m_at_z, stats)
+    mesh = build_slab_mesh(lo, hi, z_levels, m_at_z, ground=req.ground, top=req.top)
+    thickness = np.diff(z_levels)
+    stats.update(
+        {
+            "cells": int(len(thickness)),
+            "points": int(4 * len(z_levels)),
+            "layers": int(len(thickness)),
+            "min_cell_size_m": float(thickness.min()),
+            "median_cell_size_m": float(np.median(thickness)),
+            "max_cell_size_m": float(thickness.max()),
+            "build_time_s": time.perf_counter() - req.t0,
+        }
+    )
+    if req.representation == "slabs":
+        stats["approximation_error_eq14"] = relative_error_1d(z_levels, m_at_z, _n_from_quantity(quantity))
+    return Media(
+        representation=req.representation,
+        reason=req.reason,
+        quantity=quantity,
+        mesh=mesh,
+        locate=lambda xyz: locate_in_slabs(z_levels, xyz),
+        geometry=lambda: slab_geometry(lo, hi, mesh, z_levels, quantity),
+        stats=stats,
     )
 
 
-def _build_tets(
-    profile, quantity, solver, lo, hi, representation, reason, ground, top, extent, t0, size_q=None, size_n=None
-) -> Media:
+def _build_tets(req: _MediaRequest) -> Media:
+    """``tets``: the sizing grid d(x) (metres), FCC resampling (Algorithm 2) and the Delaunay CellMesh;
+    stats with the tet mesh's own report, the cell sizes and Eq. 14 on a 40^3 grid."""
     from bentray.engine.mesh.fcc import fcc_resample
     from bentray.engine.mesh.tets import approximation_error, build_tet_mesh
 
-    rule, tol, d_min, d_max = _sizing_params(solver, "tets", extent)
+    profile, quantity, solver, lo, hi = req.profile, req.quantity, req.solver, req.lo, req.hi
+    rule, tol, d_min, d_max = _sizing_params(solver, "tets", req.extent)
 
     def quantity_at(p: np.ndarray) -> np.ndarray:
         return profile.quantity(quantity, p)
@@ -220,8 +268,8 @@ def _build_tets(
     if native is not None and np.ndim(native) == 1 and len(native) == 3:
         grid_step = float(np.min(native))
     spacing = sizing_grid_spacing(
-        size_q if size_q is not None else quantity_at,
-        size_n if size_n is not None else (lambda p: profile.quantity("n", p)),
+        req.size_q if req.size_q is not None else quantity_at,
+        req.size_n if req.size_n is not None else (lambda p: profile.quantity("n", p)),
         lo,
         hi,
         rule=rule,
@@ -237,37 +285,40 @@ def _build_tets(
         points,
         quantity_at,
         spacing=spacing,
-        ground=ground,
-        top=top,
+        ground=req.ground,
+        top=req.top,
         gradient_method=solver.gradient,
     )
     stats = dict(tet.stats)
     stats.update({"sizing_rule": rule, "tolerance": tol, "d_min_m": d_min, "d_max_m": d_max})
-    # the same headline keys as the slab report (cell size = longest edge)
-    stats.update(
-        {
-            "cells": int(tet.cells.n_cells),
-            "points": int(len(tet.points)),
-            "min_cell_size_m": float(tet.cells.size.min()),
-            "median_cell_size_m": float(np.median(tet.cells.size)),
-            "max_cell_size_m": float(tet.cells.size.max()),
-        }
-    )
-    stats["build_time_s"] = time.perf_counter() - t0
+    stats.update(_cell_size_stats(tet.cells, len(tet.points)))  # the same headline keys as the slab report
+    stats["build_time_s"] = time.perf_counter() - req.t0
     # Eq. 14 on an input grid of about 40^3 points spanning the domain
     axes = [np.linspace(lo[i], hi[i], 40) for i in range(3)]
     grid = np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).reshape(-1, 3)
     stats["approximation_error_eq14"] = approximation_error(tet, grid, quantity_at(grid))
     mesh = tet.cells
     return Media(
-        representation=representation,
-        reason=reason,
+        representation=req.representation,
+        reason=req.reason,
         quantity=quantity,
         mesh=mesh,
         locate=lambda xyz: locate_points(mesh, xyz),
         geometry=lambda: tet_geometry(tet.points, tet.tets, mesh, quantity),
         stats=stats,
     )
+
+
+def _cell_size_stats(mesh: CellMesh, n_points: int) -> dict[str, Any]:
+    """Headline keys of a tet mesh report: cells, points and the cell size (longest edge, metres)
+    min / median / max."""
+    return {
+        "cells": int(mesh.n_cells),
+        "points": int(n_points),
+        "min_cell_size_m": float(mesh.size.min()),
+        "median_cell_size_m": float(np.median(mesh.size)),
+        "max_cell_size_m": float(mesh.size.max()),
+    }
 
 
 def tet_geometry(points: np.ndarray, tets: np.ndarray, mesh: CellMesh, quantity: str) -> MeshGeometry:
@@ -290,6 +341,76 @@ def _native_spacing(surfaces: SceneSurfaces) -> float | None:
         edges = np.linalg.norm(tri[:, [1, 2, 0], :2] - tri[:, :, :2], axis=2)
         return float(np.median(edges))
     return None
+
+
+def _terrain_sigma_levels(
+    profile: Profile,
+    quantity: str,
+    solver: Any,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    sizing: tuple[str, float, float],
+    quantity_fn: Callable[[np.ndarray], np.ndarray] | None,
+) -> np.ndarray:
+    """Terrain-following sigma levels (L + 1,) in [0, 1]: the slab rule (sizing = (rule, tolerance,
+    d_max metres)) on the domain's central column of the stratified part of the medium (a fluctuating
+    profile's base; quantity_fn overrides it), thinnest layer solver.d_min_m (default 1 cm), mapped by
+    sigma = (z - lo z) / (hi z - lo z). The gradient rule sizes on n of the profile itself."""
+    rule, tol, d_max = sizing
+    # Layers follow the stratified part of the medium (a fluctuating profile's base): the fluctuations'
+    # own scale is resolved horizontally by the terrain spacing, not by hundreds of global layers.
+    column = getattr(profile, "base", profile)
+    sizing_q = quantity_fn or (lambda p: column.quantity(quantity, p))
+    centre = 0.5 * (lo + hi)
+    z_lo = lo[2]
+
+    def m_at_z(z: np.ndarray) -> np.ndarray:
+        return sizing_q(_column_points(centre, z))
+
+    v_min = solver.d_min_m if solver.d_min_m is not None else DEFAULT_SLAB_D_MIN * 1e3  # 1 cm
+    if rule == "gradient":
+        z_levels = gradient_layers(
+            z_lo,
+            hi[2],
+            lambda z: profile.quantity("n", _column_points(centre, z)),
+            epsilon=tol,
+            d_min=v_min,
+            d_max=d_max,
+        )
+    else:
+        z_levels = curvature_layers(z_lo, hi[2], m_at_z, delta=tol, d_min=v_min, d_max=d_max)
+    sigma = (z_levels - z_lo) / (hi[2] - z_lo)
+    sigma[0], sigma[-1] = 0.0, 1.0
+    return sigma
+
+
+def _terrain_horizontal_spacing(surfaces: SceneSurfaces, solver: Any, extent: float) -> float:
+    """Horizontal spacing (metres): the terrain's own sample spacing, else extent x
+    DEFAULT_TET_D_MAX_FRACTION / 4; capped by solver.d_max_m."""
+    native = _native_spacing(surfaces)
+    horizontal: float = native if native is not None else extent * DEFAULT_TET_D_MAX_FRACTION / 4.0
+    if solver.d_max_m is not None:
+        horizontal = min(horizontal, solver.d_max_m)
+    return horizontal
+
+
+def _surface_triangles(stats: dict[str, Any]) -> int | None:
+    """Reflecting surface triangles of a terrain mesh report: ground + walls + roofs faces (None without
+    n_boundary_faces)."""
+    faces = stats.get("n_boundary_faces")
+    if not isinstance(faces, dict):
+        return None
+    return int(faces.get("ground", 0) + faces.get("walls", 0) + faces.get("roofs", 0))
+
+
+def _terrain_reason(surfaces: SceneSurfaces) -> str:
+    """The report's reason line for the terrain representation."""
+    ground = "terrain" if surfaces.terrain is not None else "flat ground"
+    buildings = f" and {len(surfaces.footprints)} buildings" if surfaces.footprints else ""
+    return (
+        f"scene has {ground}{buildings}: "
+        "terrain-following conforming tetrahedra (ground, walls and roofs are mesh faces)"
+    )
 
 
 def build_terrain_media(
@@ -323,37 +444,8 @@ def build_terrain_media(
     def quantity_at(p: np.ndarray) -> np.ndarray:
         return profile.quantity(quantity, p)
 
-    # Layers follow the stratified part of the medium (a fluctuating profile's base): the fluctuations'
-    # own scale is resolved horizontally by the terrain spacing, not by hundreds of global layers.
-    column = getattr(profile, "base", profile)
-    sizing_q = quantity_fn or (lambda p: column.quantity(quantity, p))
-    centre = 0.5 * (lo + hi)
-    z_lo = lo[2]
-
-    def m_at_z(z: np.ndarray) -> np.ndarray:
-        z = np.atleast_1d(np.asarray(z, float))
-        return sizing_q(np.column_stack([np.full(len(z), centre[0]), np.full(len(z), centre[1]), z]))
-
-    v_min = solver.d_min_m if solver.d_min_m is not None else DEFAULT_SLAB_D_MIN * 1e3  # 1 cm
-    if rule == "gradient":
-        z_levels = gradient_layers(
-            z_lo,
-            hi[2],
-            lambda z: profile.quantity(
-                "n", np.column_stack([np.full(len(z), centre[0]), np.full(len(z), centre[1]), z])
-            ),
-            epsilon=tol,
-            d_min=v_min,
-            d_max=d_max,
-        )
-    else:
-        z_levels = curvature_layers(z_lo, hi[2], m_at_z, delta=tol, d_min=v_min, d_max=d_max)
-    sigma = (z_levels - z_lo) / (hi[2] - z_lo)
-    sigma[0], sigma[-1] = 0.0, 1.0
-    native = _native_spacing(surfaces)
-    horizontal: float = native if native is not None else extent * DEFAULT_TET_D_MAX_FRACTION / 4.0
-    if solver.d_max_m is not None:
-        horizontal = min(horizontal, solver.d_max_m)
+    sigma = _terrain_sigma_levels(profile, quantity, solver, lo, hi, (rule, tol, d_max), quantity_fn)
+    horizontal = _terrain_horizontal_spacing(surfaces, solver, extent)
     tet = build_terrain_mesh(
         surfaces,
         lo,
@@ -367,33 +459,24 @@ def build_terrain_media(
     index = terrain_index(tet)
     mesh = tet.cells
     stats = dict(tet.stats)
+    sizes = _cell_size_stats(mesh, len(tet.points))
     stats.update(
         {
             "sizing_rule": rule,
             "tolerance": tol,
             "horizontal_spacing_m": horizontal,
-            "cells": int(mesh.n_cells),
-            "points": int(len(tet.points)),
+            "cells": sizes.pop("cells"),
+            "points": sizes.pop("points"),
             "layers": int(len(sigma) - 1),
-            "min_cell_size_m": float(mesh.size.min()),
-            "median_cell_size_m": float(np.median(mesh.size)),
-            "max_cell_size_m": float(mesh.size.max()),
-            "surface_triangles": int(
-                stats.get("n_boundary_faces", {}).get("ground", 0)
-                + stats.get("n_boundary_faces", {}).get("walls", 0)
-                + stats.get("n_boundary_faces", {}).get("roofs", 0)
-            )
-            if isinstance(stats.get("n_boundary_faces"), dict)
-            else None,
+            **sizes,
+            "surface_triangles": _surface_triangles(stats),
             "buildings": len(surfaces.footprints),
             "build_time_s": time.perf_counter() - t0,
         }
     )
     return Media(
         representation="terrain",
-        reason=f"scene has {'terrain' if surfaces.terrain is not None else 'flat ground'}"
-        f"{' and ' + str(len(surfaces.footprints)) + ' buildings' if surfaces.footprints else ''}: "
-        "terrain-following conforming tetrahedra (ground, walls and roofs are mesh faces)",
+        reason=_terrain_reason(surfaces),
         quantity=quantity,
         mesh=mesh,
         locate=lambda xyz: locate_in_terrain_mesh(tet, xyz, index),

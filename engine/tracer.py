@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any, NamedTuple
+
 import numba
 import numpy as np
 
@@ -22,6 +24,7 @@ from bentray.engine.constants import (
     STATE_X,
 )
 from bentray.engine.field_buffers import REFLECTION_RECORD_CAP, FieldBuffers, no_field_tuple
+from bentray.engine.kernels.field import FieldAcc
 from bentray.engine.kernels.traverse import PAR_OUT_SIZE, PathBuffers, RayParams, Rays, trace_rays
 from bentray.engine.mesh.cells import CellMesh
 from bentray.engine.result import RayPaths, TraceResult
@@ -49,6 +52,83 @@ def ray_inputs(
     if not (max_time_s > 0.0):
         raise ValueError("max_time_s must be positive")
     return origins, directions, start_cells
+
+
+class _FieldArgs(NamedTuple):
+    """What the traversal kernel takes for the field: accumulators, band weights (n, n_f), the number of
+    accumulator slots, the beam arguments (no_beam_args() without beams) and the number of reflection
+    records kept per ray (REFLECTION_RECORD_CAP with a field, 1 without)."""
+
+    fld: FieldAcc
+    f_weights: np.ndarray
+    n_slots: int
+    beam: tuple[Any, ...]
+    refl_cap: int
+
+
+def _field_args(
+    field: FieldBuffers | BeamBuffers | None, n: int, curve: str, paraxial: bool, record_reflections: bool = False
+) -> _FieldArgs:
+    """Kernel field arguments for ``n`` rays; ValueError when beams / paraxial rays are asked for a curve
+    other than parabolic or the field's weights do not have one row per ray. Reflection records: with a
+    field, or when ``record_reflections`` (eigenrays) asks for them."""
+    if (paraxial or isinstance(field, BeamBuffers)) and curve != "parabolic":
+        raise ValueError("paraxial rays and beam fields need the parabolic curve")
+    if field is not None and field.weights.shape[0] != n:
+        raise ValueError("field weights must have one row per ray")
+    if isinstance(field, BeamBuffers):
+        fld, f_weights = no_field_tuple(n)
+        return _FieldArgs(fld, f_weights, field.n_slots, field.kernel_args(), REFLECTION_RECORD_CAP)
+    if field is not None:
+        return _FieldArgs(field.kernel_tuple(), field.weights, field.n_slots, no_beam_args(), REFLECTION_RECORD_CAP)
+    fld, f_weights = no_field_tuple(n)
+    refl_cap = REFLECTION_RECORD_CAP if record_reflections else 1
+    return _FieldArgs(fld, f_weights, 4 * int(numba.get_num_threads()), no_beam_args(), refl_cap)
+
+
+def _path_buffers(n: int, path_samples: int, max_reflections: int) -> PathBuffers:
+    """Path sample buffers for ``n`` rays: ``path_capacity`` rows per ray (pts (n cap, 3) m, t s, s m),
+    or one dummy row of each and cap 1 when ``path_samples`` is 0 (no recording)."""
+    record = path_samples > 0
+    cap = path_capacity(path_samples, max_reflections) if record else 1
+    n_rows = n * cap if record else 1
+    return PathBuffers(np.zeros((n_rows, 3)), np.zeros(n_rows), np.zeros(n_rows), cap)
+
+
+def _ray_paths(paths: PathBuffers, samples: np.ndarray) -> RayPaths:
+    """Pack the recorded samples (``samples[i]`` (n,) of ray i, in its rows [i cap, i cap + samples[i]))
+    into a RayPaths: offsets (n + 1,) and the samples of ray i at [offsets[i], offsets[i + 1])."""
+    n = len(samples)
+    offsets = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(samples, out=offsets[1:])
+    keep = (np.arange(paths.cap)[None, :] < samples[:, None]).reshape(-1)
+    return RayPaths(offsets=offsets, points=paths.pts[keep], time_s=paths.t[keep], length_m=paths.s[keep])
+
+
+def _trace_result(rays: Rays, paths: RayPaths | None, with_reflections: bool, paraxial: bool) -> TraceResult:
+    """Decode the kernel's per-ray outputs (state, counts, reflection records, paraxial state) into a
+    TraceResult; launch angles NaN and source 0 (the caller fills them in)."""
+    n = rays.out_state.shape[0]
+    state, counts = rays.out_state, rays.out_counts
+    nan = np.full(n, np.nan)
+    return TraceResult(
+        source=np.zeros(n, dtype=np.int64),
+        elevation_deg=nan.copy(),
+        azimuth_deg=nan.copy(),
+        position=state[:, STATE_X : STATE_X + 3].copy(),
+        direction=state[:, STATE_D : STATE_D + 3].copy(),
+        time_s=state[:, STATE_TIME].copy(),
+        length_m=state[:, STATE_LENGTH].copy(),
+        reflections=counts[:, COUNT_REFLECTIONS].copy(),
+        status=counts[:, COUNT_STATUS].astype(np.int8),
+        crossings=counts[:, COUNT_CROSSINGS].copy(),
+        nudges=counts[:, COUNT_NUDGES].copy(),
+        paths=paths,
+        steps=counts[:, COUNT_STEPS].copy(),
+        reflection_cos=rays.refl_cos if with_reflections else None,
+        reflection_material=rays.refl_mat if with_reflections else None,
+        paraxial=rays.out_par if paraxial else None,
+    )
 
 
 def trace(
@@ -89,35 +169,9 @@ def trace(
     wind_code, wind_params = check_wind(wind)
     n = origins.shape[0]
     record = path_samples > 0
-    cap = path_capacity(path_samples, max_reflections) if record else 1
-    n_slots = n * cap if record else 1
-    path_pts = np.zeros((n_slots, 3))
-    path_t = np.zeros(n_slots)
-    path_s = np.zeros(n_slots)
+    path_buf = _path_buffers(n, path_samples, max_reflections)
     dt_sample = max_time_s / max(path_samples, 1)
-    out_state = np.zeros((n, STATE_SIZE))
-    out_counts = np.zeros((n, COUNT_SIZE), dtype=np.int64)
-    beam = no_beam_args()
-    if (paraxial or isinstance(field, BeamBuffers)) and curve != "parabolic":
-        raise ValueError("paraxial rays and beam fields need the parabolic curve")
-    if isinstance(field, BeamBuffers):
-        if field.weights.shape[0] != n:
-            raise ValueError("field weights must have one row per ray")
-        fld, f_weights = no_field_tuple(n)
-        n_slots = field.n_slots
-        beam = field.kernel_args()
-        refl_cap = REFLECTION_RECORD_CAP
-    elif field is not None:
-        if field.weights.shape[0] != n:
-            raise ValueError("field weights must have one row per ray")
-        fld, f_weights, n_slots = field.kernel_tuple(), field.weights, field.n_slots
-        refl_cap = REFLECTION_RECORD_CAP
-    else:
-        fld, f_weights = no_field_tuple(n)
-        n_slots = 4 * int(numba.get_num_threads())
-        refl_cap = REFLECTION_RECORD_CAP if record_reflections else 1
-    refl_cos = np.zeros((n, refl_cap))
-    refl_mat = np.zeros((n, refl_cap), dtype=np.int64)
+    fa = _field_args(field, n, curve, paraxial, record_reflections)
     prm = RayParams(
         CURVE_CODES[curve],
         float(c_ref),
@@ -129,32 +183,17 @@ def trace(
         record,
         float(dt_sample),
     )
-    out_par = np.full((n if paraxial else 0, PAR_OUT_SIZE), np.nan)
-    rays = Rays(origins, directions, start_cells, f_weights, refl_cos, refl_mat, out_state, out_counts, out_par)
-    trace_rays(mesh, prm, fld, PathBuffers(path_pts, path_t, path_s, cap), rays, n_slots, *beam)
-    paths = None
-    if record:
-        counts = out_counts[:, COUNT_SAMPLES]
-        offsets = np.zeros(n + 1, dtype=np.int64)
-        np.cumsum(counts, out=offsets[1:])
-        keep = (np.arange(cap)[None, :] < counts[:, None]).reshape(-1)
-        paths = RayPaths(offsets=offsets, points=path_pts[keep], time_s=path_t[keep], length_m=path_s[keep])
-    nan = np.full(n, np.nan)
-    return TraceResult(
-        source=np.zeros(n, dtype=np.int64),
-        elevation_deg=nan.copy(),
-        azimuth_deg=nan.copy(),
-        position=out_state[:, STATE_X : STATE_X + 3].copy(),
-        direction=out_state[:, STATE_D : STATE_D + 3].copy(),
-        time_s=out_state[:, STATE_TIME].copy(),
-        length_m=out_state[:, STATE_LENGTH].copy(),
-        reflections=out_counts[:, COUNT_REFLECTIONS].copy(),
-        status=out_counts[:, COUNT_STATUS].astype(np.int8),
-        crossings=out_counts[:, COUNT_CROSSINGS].copy(),
-        nudges=out_counts[:, COUNT_NUDGES].copy(),
-        paths=paths,
-        steps=out_counts[:, COUNT_STEPS].copy(),
-        reflection_cos=refl_cos if field is not None or record_reflections else None,
-        reflection_material=refl_mat if field is not None or record_reflections else None,
-        paraxial=out_par if paraxial else None,
+    rays = Rays(
+        origins,
+        directions,
+        start_cells,
+        fa.f_weights,
+        np.zeros((n, fa.refl_cap)),
+        np.zeros((n, fa.refl_cap), dtype=np.int64),
+        np.zeros((n, STATE_SIZE)),
+        np.zeros((n, COUNT_SIZE), dtype=np.int64),
+        np.full((n if paraxial else 0, PAR_OUT_SIZE), np.nan),
     )
+    trace_rays(mesh, prm, fa.fld, path_buf, rays, fa.n_slots, *fa.beam)
+    paths = _ray_paths(path_buf, rays.out_counts[:, COUNT_SAMPLES]) if record else None
+    return _trace_result(rays, paths, field is not None or record_reflections, paraxial)

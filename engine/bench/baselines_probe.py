@@ -225,6 +225,101 @@ class MeshCache:
         return self._meshes[key]
 
 
+@dataclass(frozen=True)
+class _RowInputs:
+    """What every row of one ``run_rows`` call shares: the case, its fan (origins, dirs (n, 3)), the
+    meshes, the timing (best of ``repeats``, more runs up to ``min_total_s`` seconds) and the keyword
+    arguments every trace_numerical call takes (``common``)."""
+
+    case: StratifiedCase
+    origins: np.ndarray
+    dirs: np.ndarray
+    meshes: MeshCache
+    repeats: int
+    min_total_s: float
+    common: dict[str, Any]
+
+
+def _analytic_row(inp: _RowInputs, name: str, setting: float, row: dict[str, Any]) -> tuple[float, Any]:
+    """Time the analytic tracer (curve ANALYTIC_CURVES[name]) on the case's slab mesh at delta = setting,
+    compiled outside the timing; fills the row's setting / cells / crossings / steps columns. Returns
+    (best trace time s, TraceResult)."""
+    case, origins, dirs = inp.case, inp.origins, inp.dirs
+    curve = ANALYTIC_CURVES[name]
+    med = inp.meshes.get(curve, setting)
+    cells = med.locate(origins)
+    row.update(
+        {"setting": f"delta={setting:g}", "tolerance": float(setting), "cells": med.mesh.n_cells, "curve": curve}
+    )
+
+    def run() -> Any:
+        return trace(med.mesh, curve, case.c_ref, origins, dirs, cells, max_time_s=case.t_end,
+                     max_reflections=case.max_reflections)  # fmt: skip
+
+    trace(med.mesh, curve, case.c_ref, origins[:1], dirs[:1], cells[:1], max_time_s=1e-3 * case.t_end,
+          max_reflections=1)  # fmt: skip  # compile outside the timing
+    elapsed, result = best_time(run, inp.repeats, inp.min_total_s)
+    row["crossings_per_ray"] = float(result.crossings.mean())
+    row["steps_per_ray"] = float(result.steps.mean())
+    return elapsed, result
+
+
+def _numerical_row(inp: _RowInputs, name: str, media: str, setting: float, row: dict[str, Any]) -> tuple[float, Any]:
+    """Time a numerical baseline (``method[+renorm]``; setting = step in metres for euler / rk4, else the
+    tolerance) on ``exact`` or ``mesh`` media (the parabolic slab mesh at MESH_DELTA), compiled outside
+    the timing; fills the row's setting / cells / steps / evaluations / restarts / rejected columns.
+    Returns (best trace time s, TraceResult)."""
+    case, origins, dirs = inp.case, inp.origins, inp.dirs
+    method, _, renorm = name.partition("+")
+    kw = dict(inp.common, renormalize=bool(renorm))
+    if method in ("euler", "rk4"):
+        kw["step_m"] = setting
+        row["setting"] = f"step={setting:g} m"
+    else:
+        kw["tolerance"] = setting
+        row["setting"] = f"tol={setting:g}"
+    row["tolerance"] = float(setting)
+    if media == "mesh":
+        med = inp.meshes.get("parabolic", MESH_DELTA)
+        kw.update(mesh=med.mesh, quantity=med.quantity, start_cells=med.locate(origins))
+        row["cells"] = med.mesh.n_cells
+    else:
+        kw["exact_spec"] = exact_media_spec(inp.meshes.profile)
+    stats: dict[str, np.ndarray] = {}
+    warm = dict(kw, origins=origins[:1], directions=dirs[:1], max_time_s=1e-3 * case.t_end)
+    if "start_cells" in kw:
+        warm["start_cells"] = kw["start_cells"][:1]
+    trace_numerical(method, media, **warm)  # compile outside the timing
+
+    def run_numerical() -> Any:
+        return trace_numerical(method, media, stats=stats, **kw)
+
+    elapsed, (result, restarts) = best_time(run_numerical, inp.repeats, inp.min_total_s)
+    row.update(
+        {
+            "steps_per_ray": float(result.steps.mean()),
+            "evaluations_per_ray": float(stats["evaluations"].mean()),
+            "restarts_per_ray": float(restarts.mean()),
+            "rejected_per_ray": float(stats["rejected"].mean()),
+        }
+    )
+    return elapsed, result
+
+
+def _error_columns(case: StratifiedCase, result: Any, ref: np.ndarray, elapsed: float) -> dict[str, Any]:
+    """Worst and median relative position error |x - x_ref| / (c_ref t) (inf when an end point is not
+    finite), the trace time (s) and the rays by status."""
+    err = np.linalg.norm(result.position - ref, axis=1) / case.norm_m
+    finite = bool(np.all(np.isfinite(result.position)))
+    return {
+        "error_max": float(np.max(err)) if finite else math.inf,
+        "error_median": float(np.median(err)) if finite else math.inf,
+        "trace_time_s": elapsed,
+        "status": result.status_counts(),
+        "finite": finite,
+    }
+
+
 def run_rows(
     case: StratifiedCase,
     rows: Sequence[tuple[str, str, float]],
@@ -246,19 +341,17 @@ def run_rows(
     origins, dirs = case.fan(count)
     if ref is None:
         ref = reference_positions(dirs, case=case)
-    meshes = MeshCache(case) if meshes is None else meshes
-    profile = meshes.profile
-    lo = np.asarray(case.domain_min, float)
-    hi = np.asarray(case.domain_max, float)
     common = {
         "c_ref": case.c_ref,
         "origins": origins,
         "directions": dirs,
         "max_time_s": case.t_end,
         "max_reflections": case.max_reflections,
-        "domain_min": lo,
-        "domain_max": hi,
+        "domain_min": np.asarray(case.domain_min, float),
+        "domain_max": np.asarray(case.domain_max, float),
     }
+    meshes = MeshCache(case) if meshes is None else meshes
+    inp = _RowInputs(case, origins, dirs, meshes, repeats, min_total_s, common)
     out: list[dict[str, Any]] = []
     for name, media, setting in rows:
         row: dict[str, Any] = {
@@ -269,88 +362,10 @@ def run_rows(
             "threads": numba.get_num_threads(),
         }
         if name in ANALYTIC_CURVES:
-            curve = ANALYTIC_CURVES[name]
-            med = meshes.get(curve, setting)
-            cells = med.locate(origins)
-            row.update(
-                {
-                    "setting": f"delta={setting:g}",
-                    "tolerance": float(setting),
-                    "cells": med.mesh.n_cells,
-                    "curve": curve,
-                }
-            )
-
-            def run(med: Media = med, cells: np.ndarray = cells, curve: str = curve) -> Any:
-                return trace(
-                    med.mesh,
-                    curve,
-                    case.c_ref,
-                    origins,
-                    dirs,
-                    cells,
-                    max_time_s=case.t_end,
-                    max_reflections=case.max_reflections,
-                )
-
-            trace(
-                med.mesh,
-                curve,
-                case.c_ref,
-                origins[:1],
-                dirs[:1],
-                cells[:1],
-                max_time_s=1e-3 * case.t_end,
-                max_reflections=1,
-            )  # compile outside the timing
-            elapsed, result = best_time(run, repeats, min_total_s)
-            row["crossings_per_ray"] = float(result.crossings.mean())
-            row["steps_per_ray"] = float(result.steps.mean())
+            elapsed, result = _analytic_row(inp, name, setting, row)
         else:
-            method, _, renorm = name.partition("+")
-            kw = dict(common, renormalize=bool(renorm))
-            if method in ("euler", "rk4"):
-                kw["step_m"] = setting
-                row["setting"] = f"step={setting:g} m"
-            else:
-                kw["tolerance"] = setting
-                row["setting"] = f"tol={setting:g}"
-            row["tolerance"] = float(setting)
-            if media == "mesh":
-                med = meshes.get("parabolic", MESH_DELTA)
-                kw.update(mesh=med.mesh, quantity=med.quantity, start_cells=med.locate(origins))
-                row["cells"] = med.mesh.n_cells
-            else:
-                kw["exact_spec"] = exact_media_spec(profile)
-            stats: dict[str, np.ndarray] = {}
-            warm = dict(kw, origins=origins[:1], directions=dirs[:1], max_time_s=1e-3 * case.t_end)
-            if "start_cells" in kw:
-                warm["start_cells"] = kw["start_cells"][:1]
-            trace_numerical(method, media, **warm)  # compile outside the timing
-
-            def run_numerical(method: str = method, media: str = media, stats: dict = stats, kw: dict = kw) -> Any:
-                return trace_numerical(method, media, stats=stats, **kw)
-
-            elapsed, (result, restarts) = best_time(run_numerical, repeats, min_total_s)
-            row.update(
-                {
-                    "steps_per_ray": float(result.steps.mean()),
-                    "evaluations_per_ray": float(stats["evaluations"].mean()),
-                    "restarts_per_ray": float(restarts.mean()),
-                    "rejected_per_ray": float(stats["rejected"].mean()),
-                }
-            )
-        err = np.linalg.norm(result.position - ref, axis=1) / case.norm_m
-        finite = bool(np.all(np.isfinite(result.position)))
-        row.update(
-            {
-                "error_max": float(np.max(err)) if finite else math.inf,
-                "error_median": float(np.median(err)) if finite else math.inf,
-                "trace_time_s": elapsed,
-                "status": result.status_counts(),
-                "finite": finite,
-            }
-        )
+            elapsed, result = _numerical_row(inp, name, media, setting, row)
+        row.update(_error_columns(case, result, ref, elapsed))
         out.append(row)
     return out
 

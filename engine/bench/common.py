@@ -99,7 +99,8 @@ def numba_threads(n: int) -> Iterator[None]:
     import numba
 
     before = numba.get_num_threads()
-    numba.set_num_threads(max(1, min(int(n), numba.config.NUMBA_NUM_THREADS)))
+    limit = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]  # set at import
+    numba.set_num_threads(max(1, min(int(n), limit)))
     try:
         yield
     finally:

@@ -196,6 +196,116 @@ def _evidence(rows: Sequence[dict[str, Any]], entry: dict[str, Any]) -> str:
     return "; ".join(parts)
 
 
+_STALL_COLUMNS = [
+    "case",
+    "family",
+    "settings",
+    "best_error",
+    "best_setting",
+    "finest_error",
+    "gain",
+    "expected_gain",
+    "stalls",
+    "why",
+]
+
+
+def _rows_table(rows: Sequence[dict[str, Any]]) -> Table:
+    """One line per measured row (COLUMNS; lost rays and the non-zero statuses spelled out)."""
+    table = Table("error_vs_time", "Error against trace time", COLUMNS)
+    for r in rows:
+        table.add(
+            **{c: r.get(c, "") for c in COLUMNS if c not in ("lost", "status")},
+            lost=r["status"].get("lost", 0),
+            status="; ".join(f"{k} {v}" for k, v in r["status"].items() if v),
+        )
+    return table
+
+
+def _speedup_table(sp: Sequence[dict[str, Any]]) -> Table:
+    """The ``speedups`` entries as a table."""
+    table = Table(
+        "speedup",
+        "Time to reach a target error, and the analytic tracer's speed-up",
+        list(sp[0].keys()) if sp else ["case"],
+    )
+    for e in sp:
+        table.add(**e)
+    return table
+
+
+def _stalls_table(rows: Sequence[dict[str, Any]], st: Sequence[dict[str, Any]]) -> Table:
+    """The ``stalls`` entries as a table, each with why it stalls (``_why``, ``_evidence``)."""
+    table = Table(
+        "stalls",
+        "Where each method stops converging (gain = coarsest / finest error; expected from "
+        "the setting ratio and the method's order)",
+        _STALL_COLUMNS,
+    )
+    for e in st:
+        table.add(**e, why=_why(e["family"], e["stalls"], e["best_error"], _evidence(rows, e)))
+    return table
+
+
+def _summary_text(count: int, repeats: int, sp: Sequence[dict[str, Any]], st: Sequence[dict[str, Any]]) -> list[str]:
+    """The section's paragraphs: the set-up, the headline speed-up and the baselines that stall."""
+    text = [
+        f"{count} rays per case (elevations -45..45 degrees, source 1.5 m), trace time = best of {repeats} warm "
+        "run(s), mesh builds and Numba compilation excluded. Errors: worst (and median) |x - x_ref| / (c_ref t) "
+        "against DOP853 at rtol 1e-13 in sigma. `exact` media: the baseline evaluates the closed-form profile "
+        "(possible only for analytic profiles: an upper bound on what a numerical tracer can do); `mesh` media: "
+        "the same per-cell linear slab media as the analytic tracer (delta 1e-8), i.e. what a numerical tracer "
+        "gets for sampled, gridded or 3D media."
+    ]
+    head = next((e for e in sp if e["case"] == HEADLINE_CASE and e["target"] == HEADLINE_TARGET), None)
+    if head is not None:
+        text.append(
+            f"**Headline ({HEADLINE_CASE}, worst error <= {HEADLINE_TARGET:g}):** analytic "
+            f"{fmt(head['analytic_time_s'])} s ({head['analytic_setting']}); best baseline on the same mesh media "
+            f"{head['best_mesh']} {fmt(head['best_mesh_time_s'])} s -> **{fmt(head['speedup_vs_mesh'])}x**; "
+            f"best baseline on the exact closed-form media {head['best_exact']} {fmt(head['best_exact_time_s'])} s "
+            f"-> **{fmt(head['speedup_vs_exact'])}x** (target: >= 10x)."
+        )
+    stalled = [e for e in st if e["stalls"] and not e["family"].startswith("analytic")]
+    if stalled:
+        text.append(
+            "Baselines that stop converging (less than the square root of their expected gain from the "
+            "coarsest to the finest setting): "
+            + "; ".join(f"{e['case']} {e['family']} at {fmt(e['best_error'])}" for e in stalled)
+            + "."
+        )
+    return text
+
+
+def _case_panel(key: str, rows: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """One log-log panel (worst error against trace time, s) of case ``key``: a series per family."""
+    series = []
+    fams: dict[str, list[dict[str, Any]]] = {}
+    for r in rows:
+        if r["case"] == key and math.isfinite(r["error_max"]):
+            fams.setdefault(_family(r), []).append(r)
+    for fam, rs in fams.items():
+        rs = sorted(rs, key=lambda r: r["trace_time_s"])
+        series.append(
+            Series(
+                fam,
+                [max(r["trace_time_s"], 1e-6) for r in rs],
+                [max(r["error_max"], 1e-16) for r in rs],
+                marker="s" if fam.startswith("analytic") else "o",
+                linestyle="-" if "(mesh)" in fam else "--",
+            )
+        )
+    return {
+        "title": key,
+        "xlabel": "trace time (s)",
+        "ylabel": "worst relative position error",
+        "xlog": True,
+        "ylog": True,
+        "series": series,
+        "hline": HEADLINE_TARGET if key == HEADLINE_CASE else None,
+    }
+
+
 @on_timing_threads
 def run(quick: bool, cases: Sequence[str] | None = None) -> Section:
     """Run the section on ``cases`` (default all four); quick: 13 rays, 1 run per row; full: 91 rays, best of 3."""
@@ -208,95 +318,10 @@ def run(quick: bool, cases: Sequence[str] | None = None) -> Section:
             case, rows_for(case, quick), count, repeats, meshes=MeshCache(case), min_total_s=0.05 if quick else 0.3
         )
     sec = Section("error_vs_time", "Error against run time (Fig. 4/5)")
-    table = Table("error_vs_time", "Error against trace time", COLUMNS)
-    for r in rows:
-        table.add(
-            **{c: r.get(c, "") for c in COLUMNS if c not in ("lost", "status")},
-            lost=r["status"].get("lost", 0),
-            status="; ".join(f"{k} {v}" for k, v in r["status"].items() if v),
-        )
     sp = speedups(rows)
-    sp_table = Table(
-        "speedup",
-        "Time to reach a target error, and the analytic tracer's speed-up",
-        list(sp[0].keys()) if sp else ["case"],
-    )
-    for e in sp:
-        sp_table.add(**e)
     st = stalls(rows)
-    st_table = Table(
-        "stalls",
-        "Where each method stops converging (gain = coarsest / finest error; expected from "
-        "the setting ratio and the method's order)",
-        [
-            "case",
-            "family",
-            "settings",
-            "best_error",
-            "best_setting",
-            "finest_error",
-            "gain",
-            "expected_gain",
-            "stalls",
-            "why",
-        ],
-    )
-    for e in st:
-        st_table.add(**e, why=_why(e["family"], e["stalls"], e["best_error"], _evidence(rows, e)))
-    sec.tables += [table, sp_table, st_table]
-    sec.text.append(
-        f"{count} rays per case (elevations -45..45 degrees, source 1.5 m), trace time = best of {repeats} warm "
-        "run(s), mesh builds and Numba compilation excluded. Errors: worst (and median) |x - x_ref| / (c_ref t) "
-        "against DOP853 at rtol 1e-13 in sigma. `exact` media: the baseline evaluates the closed-form profile "
-        "(possible only for analytic profiles: an upper bound on what a numerical tracer can do); `mesh` media: "
-        "the same per-cell linear slab media as the analytic tracer (delta 1e-8), i.e. what a numerical tracer "
-        "gets for sampled, gridded or 3D media."
-    )
-    head = next((e for e in sp if e["case"] == HEADLINE_CASE and e["target"] == HEADLINE_TARGET), None)
-    if head is not None:
-        sec.text.append(
-            f"**Headline ({HEADLINE_CASE}, worst error <= {HEADLINE_TARGET:g}):** analytic "
-            f"{fmt(head['analytic_time_s'])} s ({head['analytic_setting']}); best baseline on the same mesh media "
-            f"{head['best_mesh']} {fmt(head['best_mesh_time_s'])} s -> **{fmt(head['speedup_vs_mesh'])}x**; "
-            f"best baseline on the exact closed-form media {head['best_exact']} {fmt(head['best_exact_time_s'])} s "
-            f"-> **{fmt(head['speedup_vs_exact'])}x** (target: >= 10x)."
-        )
-    stalled = [e for e in st if e["stalls"] and not e["family"].startswith("analytic")]
-    if stalled:
-        sec.text.append(
-            "Baselines that stop converging (less than the square root of their expected gain from the "
-            "coarsest to the finest setting): "
-            + "; ".join(f"{e['case']} {e['family']} at {fmt(e['best_error'])}" for e in stalled)
-            + "."
-        )
-    panels = []
-    for key in keys:
-        series = []
-        fams: dict[str, list[dict[str, Any]]] = {}
-        for r in rows:
-            if r["case"] == key and math.isfinite(r["error_max"]):
-                fams.setdefault(_family(r), []).append(r)
-        for fam, rs in fams.items():
-            rs = sorted(rs, key=lambda r: r["trace_time_s"])
-            series.append(
-                Series(
-                    fam,
-                    [max(r["trace_time_s"], 1e-6) for r in rs],
-                    [max(r["error_max"], 1e-16) for r in rs],
-                    marker="s" if fam.startswith("analytic") else "o",
-                    linestyle="-" if "(mesh)" in fam else "--",
-                )
-            )
-        panels.append(
-            {
-                "title": key,
-                "xlabel": "trace time (s)",
-                "ylabel": "worst relative position error",
-                "xlog": True,
-                "ylog": True,
-                "series": series,
-                "hline": HEADLINE_TARGET if key == HEADLINE_CASE else None,
-            }
-        )
+    sec.tables += [_rows_table(rows), _speedup_table(sp), _stalls_table(rows, st)]
+    sec.text += _summary_text(count, repeats, sp, st)
+    panels = [_case_panel(key, rows) for key in keys]
     sec.plots.append(Plot("fig4_5_error_vs_time", "Error against trace time", panels))
     return sec

@@ -264,131 +264,179 @@ def min_dihedral_deg(points: np.ndarray, tets: np.ndarray) -> float:
     return best
 
 
+_ALD = {"c0": 340.0, "b": 1.0, "z_g": 1.0}  # A-LD: log profile c = c0 + b ln(1 + z / z_g), m/s
+
+
+def _fan_elevations(quick: bool) -> np.ndarray:
+    """Elevations (degrees) of the stratified cases' fans: -45..45, 7 rays quick, 13 full."""
+    return np.linspace(-45.0, 45.0, 7 if quick else 13)
+
+
+def _grazing_alu(key: str, quick: bool) -> ExtremeCase:
+    """Source on the ground, elevations 0 and 1e-3 degrees, A-LU (lifted off), 10 s."""
+    return _stratified(
+        key,
+        "source on the ground, elevation 0 / 1e-3 deg, A-LU",
+        {"c0": 340.0, "b": -1.0, "z_g": 1.0},
+        (0.0, 0.0, 0.0),
+        np.array([0.0, 1e-3]),
+        10.0,
+        50,
+    )
+
+
+def _grazing_ald(key: str, quick: bool) -> ExtremeCase:
+    """Source on the ground under A-LD (pressed onto it), 1 s; reference: the creeping limit x = c0 t."""
+    case = _stratified(
+        key,
+        "source on the ground, elevation 0 / 1e-3 deg, A-LD (creeping)",
+        dict(_ALD),
+        (0.0, 0.0, 0.0),
+        np.array([0.0, 1e-3]),
+        1.0,
+        10_000,
+        reference="none",
+    )
+    case.reference = lambda: np.tile([C_REF * 1.0, 0.0, 0.0], (2, 1))
+    case.reference_kind = "creeping limit x = c0 t (elevation 0 only)"
+    return case
+
+
+def _along_gradient(key: str, quick: bool) -> ExtremeCase:
+    """Exactly vertical rays up and down from 1.5 m in A-LD, 5 s; reference t = int dz / c(z)."""
+    case = _stratified(
+        key,
+        "vertical rays up / down, A-LD",
+        dict(_ALD),
+        (0.0, 0.0, 1.5),
+        np.array([90.0, -90.0]),
+        5.0,
+        50,
+        reference="none",
+    )
+    case.directions = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]])  # exactly vertical
+    prof = case.profile
+    case.reference = lambda: np.array([[0.0, 0.0, vertical_reference(prof, 1.5, up, 5.0)] for up in (True, False)])
+    case.reference_kind = "t = int dz / c(z) (quad + brentq)"
+    return case
+
+
+def _zero_gradient(key: str, quick: bool) -> ExtremeCase:
+    """Homogeneous air in one box cell, 10 s; reference: straight lines and their ground mirror images."""
+    profile = build_profile("homogeneous", c0=340.0, c_ref=C_REF)
+    med = _slabs(profile, ACOUSTIC_LO, ACOUSTIC_HI)
+    o, d = fan((0.0, 0.0, 1.5), _fan_elevations(quick))
+
+    def mirror() -> np.ndarray:
+        x = o + 340.0 * 10.0 * d
+        x[:, 2] = np.abs(x[:, 2])
+        return x
+
+    return ExtremeCase(
+        key,
+        "homogeneous air (one box cell)",
+        profile,
+        med.mesh,
+        "parabolic",
+        o,
+        d,
+        med.locate(o),
+        10.0,
+        50,
+        ACOUSTIC_LO,
+        ACOUSTIC_HI,
+        mirror,
+        "straight lines and mirror images",
+        stats=dict(med.stats),
+    )
+
+
+def _gradient_100x(key: str, quick: bool) -> ExtremeCase:
+    """A-LD with b = 100 m/s (100x the paper's), 1 s."""
+    return _stratified(
+        key,
+        "A-LD with b = 100 m/s (100x), 1 s",
+        {"c0": 340.0, "b": 100.0, "z_g": 1.0},
+        (0.0, 0.0, 1.5),
+        _fan_elevations(quick),
+        1.0,
+        10_000,
+    )
+
+
+def _log_zg_small(key: str, quick: bool) -> ExtremeCase:
+    """A-LD with z_g = 0.01 m (|dc/dz| = 100 1/s at the ground), 10 s."""
+    return _stratified(
+        key,
+        "A-LD with z_g = 0.01 m (stiff near the ground)",
+        {"c0": 340.0, "b": 1.0, "z_g": 0.01},
+        (0.0, 0.0, 1.5),
+        _fan_elevations(quick),
+        10.0,
+        200,
+    )
+
+
+def _source_on_mesh_entity(key: str, quick: bool) -> ExtremeCase:
+    """The source exactly on a vertex / edge midpoint / face centroid (key suffix) of the FCC Delaunay mesh."""
+    tet = _fcc_mesh()
+    where = key.rsplit("_", 1)[1]
+    return _tet_case(
+        key,
+        f"source exactly on a mesh {where} (Delaunay tets, n^2 linear)",
+        tet,
+        _vertex_edge_face(tet)[where],
+        14 if quick else 26,
+    )
+
+
+def _sliver_cells(key: str, quick: bool) -> ExtremeCase:
+    """The Delaunay mesh of a jittered cubic lattice of spacing TET_SPACING (full of slivers)."""
+    ax = [
+        np.arange(lo + TET_SPACING, hi - 0.5 * TET_SPACING, TET_SPACING) for lo, hi in zip(TET_LO, TET_HI, strict=True)
+    ]
+    cubic = np.stack(np.meshgrid(*ax, indexing="ij"), axis=-1).reshape(-1, 3)
+    tet = _tet_mesh(cubic)
+    return _tet_case(
+        key, "Delaunay of a jittered cubic lattice (slivers)", tet, np.array([1.0, 2.0, 101.0]), 14 if quick else 26
+    )
+
+
+def _domain_10km(key: str, quick: bool) -> ExtremeCase:
+    """A-LD over a 10 km range (30 s) in a 10 km x 8 km domain."""
+    return _stratified(
+        key,
+        "A-LD over 10 km (30 s), 10 km x 8 km domain",
+        dict(_ALD),
+        (0.0, 0.0, 1.5),
+        _fan_elevations(quick),
+        30.0,
+        200,
+        lo=(-50.0, -50.0, 0.0),
+        hi=(10_300.0, 50.0, 8000.0),
+    )
+
+
+_CASE_FUNCTIONS: dict[str, Callable[[str, bool], ExtremeCase]] = {
+    "grazing_alu": _grazing_alu,
+    "grazing_ald": _grazing_ald,
+    "along_gradient": _along_gradient,
+    "zero_gradient": _zero_gradient,
+    "gradient_100x": _gradient_100x,
+    "log_zg_0.01": _log_zg_small,
+    "source_on_vertex": _source_on_mesh_entity,
+    "source_on_edge": _source_on_mesh_entity,
+    "source_on_face": _source_on_mesh_entity,
+    "sliver_cells": _sliver_cells,
+    "domain_10km": _domain_10km,
+}
+
+
 def build_case(key: str, quick: bool = False) -> ExtremeCase:
     """Build the named case (CASE_BUILDERS); ``quick`` uses fewer rays."""
-    n_fan = 7 if quick else 13
-    el = np.linspace(-45.0, 45.0, n_fan)
-    ald = {"c0": 340.0, "b": 1.0, "z_g": 1.0}
-    if key == "grazing_alu":
-        return _stratified(
-            key,
-            "source on the ground, elevation 0 / 1e-3 deg, A-LU",
-            {"c0": 340.0, "b": -1.0, "z_g": 1.0},
-            (0.0, 0.0, 0.0),
-            np.array([0.0, 1e-3]),
-            10.0,
-            50,
-        )
-    if key == "grazing_ald":
-        case = _stratified(
-            key,
-            "source on the ground, elevation 0 / 1e-3 deg, A-LD (creeping)",
-            ald,
-            (0.0, 0.0, 0.0),
-            np.array([0.0, 1e-3]),
-            1.0,
-            10_000,
-            reference="none",
-        )
-        case.reference = lambda: np.tile([C_REF * 1.0, 0.0, 0.0], (2, 1))
-        case.reference_kind = "creeping limit x = c0 t (elevation 0 only)"
-        return case
-    if key == "along_gradient":
-        case = _stratified(
-            key,
-            "vertical rays up / down, A-LD",
-            ald,
-            (0.0, 0.0, 1.5),
-            np.array([90.0, -90.0]),
-            5.0,
-            50,
-            reference="none",
-        )
-        case.directions = np.array([[0.0, 0.0, 1.0], [0.0, 0.0, -1.0]])  # exactly vertical
-        prof = case.profile
-        case.reference = lambda: np.array([[0.0, 0.0, vertical_reference(prof, 1.5, up, 5.0)] for up in (True, False)])
-        case.reference_kind = "t = int dz / c(z) (quad + brentq)"
-        return case
-    if key == "zero_gradient":
-        profile = build_profile("homogeneous", c0=340.0, c_ref=C_REF)
-        med = _slabs(profile, ACOUSTIC_LO, ACOUSTIC_HI)
-        o, d = fan((0.0, 0.0, 1.5), el)
-
-        def mirror() -> np.ndarray:
-            x = o + 340.0 * 10.0 * d
-            x[:, 2] = np.abs(x[:, 2])
-            return x
-
-        return ExtremeCase(
-            key,
-            "homogeneous air (one box cell)",
-            profile,
-            med.mesh,
-            "parabolic",
-            o,
-            d,
-            med.locate(o),
-            10.0,
-            50,
-            ACOUSTIC_LO,
-            ACOUSTIC_HI,
-            mirror,
-            "straight lines and mirror images",
-            stats=dict(med.stats),
-        )
-    if key == "gradient_100x":
-        return _stratified(
-            key,
-            "A-LD with b = 100 m/s (100x), 1 s",
-            {"c0": 340.0, "b": 100.0, "z_g": 1.0},
-            (0.0, 0.0, 1.5),
-            el,
-            1.0,
-            10_000,
-        )
-    if key == "log_zg_0.01":
-        return _stratified(
-            key,
-            "A-LD with z_g = 0.01 m (stiff near the ground)",
-            {"c0": 340.0, "b": 1.0, "z_g": 0.01},
-            (0.0, 0.0, 1.5),
-            el,
-            10.0,
-            200,
-        )
-    if key in ("source_on_vertex", "source_on_edge", "source_on_face"):
-        tet = _fcc_mesh()
-        where = key.rsplit("_", 1)[1]
-        return _tet_case(
-            key,
-            f"source exactly on a mesh {where} (Delaunay tets, n^2 linear)",
-            tet,
-            _vertex_edge_face(tet)[where],
-            14 if quick else 26,
-        )
-    if key == "sliver_cells":
-        ax = [
-            np.arange(lo + TET_SPACING, hi - 0.5 * TET_SPACING, TET_SPACING)
-            for lo, hi in zip(TET_LO, TET_HI, strict=True)
-        ]
-        cubic = np.stack(np.meshgrid(*ax, indexing="ij"), axis=-1).reshape(-1, 3)
-        tet = _tet_mesh(cubic)
-        return _tet_case(
-            key, "Delaunay of a jittered cubic lattice (slivers)", tet, np.array([1.0, 2.0, 101.0]), 14 if quick else 26
-        )
-    if key == "domain_10km":
-        return _stratified(
-            key,
-            "A-LD over 10 km (30 s), 10 km x 8 km domain",
-            ald,
-            (0.0, 0.0, 1.5),
-            el,
-            30.0,
-            200,
-            lo=(-50.0, -50.0, 0.0),
-            hi=(10_300.0, 50.0, 8000.0),
-        )
-    raise ValueError(f"unknown extreme case {key!r}; expected one of {list(CASE_BUILDERS)}")
+    if key not in _CASE_FUNCTIONS:
+        raise ValueError(f"unknown extreme case {key!r}; expected one of {list(CASE_BUILDERS)}")
+    return _CASE_FUNCTIONS[key](key, quick)
 
 
 CASE_BUILDERS = (
@@ -441,7 +489,7 @@ def trace_case(case: ExtremeCase, method: str, media: str) -> tuple[Any, float]:
     from bentray.engine.baselines.trace_numerical import trace_numerical
     from bentray.engine.tracer import trace
 
-    kw = {"max_time_s": case.max_time_s, "max_reflections": case.max_reflections}
+    kw: dict[str, Any] = {"max_time_s": case.max_time_s, "max_reflections": case.max_reflections}
     if method == "analytic":
 
         def go(n: int | None = None) -> Any:
@@ -463,7 +511,7 @@ def trace_case(case: ExtremeCase, method: str, media: str) -> tuple[Any, float]:
 
         def go(n: int | None = None) -> Any:
             s = slice(None) if n is None else slice(0, n)
-            extra = {"start_cells": case.start_cells[s]} if media == "mesh" else {}
+            extra: dict[str, Any] = {"start_cells": case.start_cells[s]} if media == "mesh" else {}
             return trace_numerical(
                 method, media, origins=case.origins[s], directions=case.directions[s], **extra, **nkw
             )[0]

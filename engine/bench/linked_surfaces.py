@@ -55,7 +55,7 @@ COLUMNS = [
     "note",
 ]
 SCENES = ("desert", "christmas")
-KW = {"max_time_s": 10.0, "max_reflections": 3}
+KW: dict[str, Any] = {"max_time_s": 10.0, "max_reflections": 3}
 
 
 def _linked(name: str, resolution: str, sc: SceneMesh) -> tuple[Any, float]:

@@ -13,7 +13,7 @@ mesh builder fails.
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -91,23 +91,27 @@ def _row(
     )
 
 
-@on_timing_threads
-def run(quick: bool) -> Section:
-    """Quick: fewer variants, 31-ray fans, 300-ray scenes, one run each; full: 91-ray fans, 2,000-ray scenes."""
-    count = 31 if quick else 91
-    scene_rays = 300 if quick else 2000
-    repeats, min_total = (1, 0.05) if quick else (3, 0.3)
-    table = Table("fig8_scaling", "Fig. 8: trace time against gradient, cells and surfaces", COLUMNS)
-    base = CASES["A-LD"]
+class _Budget(NamedTuple):
+    """Sizes and timing of one run: fan_rays (A-LD geometry), scene_rays (over the sphere), best of
+    ``repeats`` runs (more while they add up to ``min_total`` s), and whether it is the quick run."""
 
-    # (a) gradient magnitude
-    for b in (0.5, 1.0, 4.0) if quick else (0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0):
+    fan_rays: int
+    scene_rays: int
+    repeats: int
+    min_total: float
+    quick: bool
+
+
+def _gradient_rows(table: Table, bud: _Budget) -> None:
+    """(a) gradient magnitude: the log profile with b scaled, each on its default slab mesh, the A-LD fan."""
+    base = CASES["A-LD"]
+    for b in (0.5, 1.0, 4.0) if bud.quick else (0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0):
         case = StratifiedCase(
             f"b={b:g}", "log", {"c0": 340.0, "b": b, "z_g": 1.0}, base.t_end, base.domain_min, base.domain_max
         )
         med = build_media(case.profile(), "parabolic", Solver(), np.array(case.domain_min), np.array(case.domain_max))
-        o, d = case.fan(count)
-        elapsed, res = _time(med.mesh, o, d, med.locate(o), case.t_end, 50, repeats, min_total)
+        o, d = case.fan(bud.fan_rays)
+        elapsed, res = _time(med.mesh, o, d, med.locate(o), case.t_end, 50, bud.repeats, bud.min_total)
         _row(
             table,
             "gradient",
@@ -119,47 +123,57 @@ def run(quick: bool) -> Section:
             note=f"dc/dz at the ground = {b:g} 1/s",
         )
 
-    # (b) cell count
-    o, d = base.fan(count)
-    for delta in (1e-6, 1e-8, 1e-10) if quick else (1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10):
+
+def _cell_rows(table: Table, bud: _Budget) -> None:
+    """(b) cell count: A-LD on slab meshes from delta 1e-5 to 1e-10; in the full run also the desert
+    scene's terrain mesh at three horizontal spacings (metres)."""
+    base = CASES["A-LD"]
+    o, d = base.fan(bud.fan_rays)
+    for delta in (1e-6, 1e-8, 1e-10) if bud.quick else (1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10):
         med = build_media(
             base.profile(), "parabolic", Solver(delta=delta), np.array(base.domain_min), np.array(base.domain_max)
         )
-        elapsed, res = _time(med.mesh, o, d, med.locate(o), base.t_end, 50, repeats, min_total)
+        elapsed, res = _time(med.mesh, o, d, med.locate(o), base.t_end, 50, bud.repeats, bud.min_total)
         _row(table, "cells", "A-LD slabs", float(med.mesh.n_cells), med.mesh, res, elapsed, note=f"delta={delta:g}")
-    if not quick:
-        for spacing in (62.5, 31.25, 20.0):
-            try:
-                sc = build_scene_mesh("desert", scene_rays, horizontal_spacing_m=spacing)
-            except SceneUnavailable as exc:
-                table.add(study="cells", variant="desert terrain mesh", note=f"skipped: {exc}")
-                continue
-            elapsed, res = _time(sc.mesh, sc.origins, sc.directions, sc.start_cells, 10.0, 3, repeats, min_total)
-            _row(
-                table,
-                "cells",
-                "desert terrain mesh",
-                float(sc.mesh.n_cells),
-                sc.mesh,
-                res,
-                elapsed,
-                surfaces=sc.surfaces,
-                note=f"horizontal spacing {spacing:g} m",
-            )
+    if bud.quick:
+        return
+    for spacing in (62.5, 31.25, 20.0):
+        try:
+            sc = build_scene_mesh("desert", bud.scene_rays, horizontal_spacing_m=spacing)
+        except SceneUnavailable as exc:
+            table.add(study="cells", variant="desert terrain mesh", note=f"skipped: {exc}")
+            continue
+        elapsed, res = _time(sc.mesh, sc.origins, sc.directions, sc.start_cells, 10.0, 3, bud.repeats, bud.min_total)
+        _row(
+            table,
+            "cells",
+            "desert terrain mesh",
+            float(sc.mesh.n_cells),
+            sc.mesh,
+            res,
+            elapsed,
+            surfaces=sc.surfaces,
+            note=f"horizontal spacing {spacing:g} m",
+        )
 
-    # (c) surface count
+
+def _surface_rows(table: Table, bud: _Budget) -> None:
+    """(c) surface count: the christmas village with 0 to 40 of its buildings (fixed horizontal spacing);
+    a scene that cannot be built becomes a skipped row."""
     try:
         from bentray.scenes.library.registry import get_builtin
 
         village = get_builtin("christmas", "medium").surfaces
-        for k in (0, 40) if quick else (0, 10, 20, 40):
+        for k in (0, 40) if bud.quick else (0, 10, 20, 40):
             surf = dataclasses.replace(village, footprints=list(village.footprints[:k]))
             try:
-                sc = build_scene_mesh("christmas", scene_rays, surfaces=surf)
+                sc = build_scene_mesh("christmas", bud.scene_rays, surfaces=surf)
             except SceneUnavailable as exc:
                 table.add(study="surfaces", variant=f"christmas, {k} buildings", note=f"skipped: {exc}")
                 continue
-            elapsed, res = _time(sc.mesh, sc.origins, sc.directions, sc.start_cells, 10.0, 3, repeats, min_total)
+            elapsed, res = _time(
+                sc.mesh, sc.origins, sc.directions, sc.start_cells, 10.0, 3, bud.repeats, bud.min_total
+            )
             _row(
                 table,
                 "surfaces",
@@ -173,14 +187,9 @@ def run(quick: bool) -> Section:
     except Exception as exc:  # noqa: BLE001 - the scene library itself failed: report, do not abort the bench
         table.add(study="surfaces", variant="christmas", note=f"skipped: {type(exc).__name__}: {exc}")
 
-    sec = Section("scaling", "Scaling (Fig. 8)")
-    sec.text.append(
-        f"Fans of {count} rays (A-LD geometry) and {scene_rays} rays over the sphere for scenes; best of "
-        f"{repeats} warm run(s). `ns_per_crossing` = trace time / cell crossings: near-constant means the cost "
-        "is the number of cells a ray crosses, whatever the gradient or the surface count. Larger gradients cost "
-        "more only through the finer mesh the sizing rule builds for them and the extra reflections."
-    )
-    sec.tables.append(table)
+
+def _scaling_plot(table: Table) -> Plot:
+    """Log-log panels per study: us per ray and ns per crossing against the study's x value."""
     panels = []
     for study, xlabel in (
         ("gradient", "ground gradient |dc/dz| (1/s)"),
@@ -206,5 +215,25 @@ def run(quick: bool) -> Section:
         panels.append(
             {"title": study, "xlabel": xlabel, "ylabel": "time", "xlog": True, "ylog": True, "series": series}
         )
-    sec.plots.append(Plot("fig8_scaling", "Trace time against gradient, cell count and surface count", panels))
+    return Plot("fig8_scaling", "Trace time against gradient, cell count and surface count", panels)
+
+
+@on_timing_threads
+def run(quick: bool) -> Section:
+    """Quick: fewer variants, 31-ray fans, 300-ray scenes, one run each; full: 91-ray fans, 2,000-ray scenes."""
+    repeats, min_total = (1, 0.05) if quick else (3, 0.3)
+    bud = _Budget(31 if quick else 91, 300 if quick else 2000, repeats, min_total, quick)
+    table = Table("fig8_scaling", "Fig. 8: trace time against gradient, cells and surfaces", COLUMNS)
+    _gradient_rows(table, bud)
+    _cell_rows(table, bud)
+    _surface_rows(table, bud)
+    sec = Section("scaling", "Scaling (Fig. 8)")
+    sec.text.append(
+        f"Fans of {bud.fan_rays} rays (A-LD geometry) and {bud.scene_rays} rays over the sphere for scenes; best of "
+        f"{repeats} warm run(s). `ns_per_crossing` = trace time / cell crossings: near-constant means the cost "
+        "is the number of cells a ray crosses, whatever the gradient or the surface count. Larger gradients cost "
+        "more only through the finer mesh the sizing rule builds for them and the extra reflections."
+    )
+    sec.tables.append(table)
+    sec.plots.append(_scaling_plot(table))
     return sec

@@ -142,10 +142,63 @@ def _fit_overhead(n_batches: list[int], seconds: list[float]) -> tuple[float, fl
     return float(t0), float(slope)
 
 
-def run(quick: bool = False, progress: Callable[[str], None] | None = None) -> Section:
+def _local_rows(plans: dict[str, TracePlan], scaling: Table, overhead: Table, sizes: list[int], repeats: int,
+                say: Callable[[str], None]) -> dict[str, float]:  # fmt: skip
+    """Strong-scaling rows on the local executor (1 and 2 numba threads) and its per-batch overhead rows
+    (1 thread); returns the 1-thread time (s) of each grid, the speed-up baseline."""
+    n_rays = plans["small"].n_rays
+    local = LocalExecutor()
+    base: dict[str, float] = {}
+    for grid, plan in plans.items():
+        for threads in (1, 2):
+            limit = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]  # set at import
+            numba.set_num_threads(min(threads, limit))
+            t = time_batches(local, plan, SCALING_BATCH, repeats)
+            base.setdefault(grid, t)
+            scaling.add(grid=grid, executor="local", workers=1, numba_threads=threads, trace_s=t,
+                        speedup=base[grid] / t, rays_per_s=n_rays / t)  # fmt: skip
+            say(f"{grid}: local {threads} thread(s) {t:.3f} s")
+        numba.set_num_threads(1)
+        slope = _overhead_rows(overhead, local, "local, 1 thread", grid, plan, sizes, repeats)
+        say(f"{grid}: local overhead {1e3 * slope:.2f} ms/batch")
+    return base
+
+
+def _dask_rows(plans: dict[str, TracePlan], scaling: Table, overhead: Table, sizes: list[int], repeats: int,
+               base: dict[str, float], say: Callable[[str], None]) -> None:  # fmt: skip
+    """Strong-scaling rows on a LocalCluster of 1 and 2 worker processes (1 thread each) and, on 2
+    workers, the per-batch overhead rows."""
     from distributed import Client, LocalCluster
 
     from bentray.engine.dask_executor import DaskExecutor
+
+    n_rays = plans["small"].n_rays
+    for workers in (1, 2):
+        with (
+            LocalCluster(
+                n_workers=workers,
+                threads_per_worker=1,
+                processes=True,
+                dashboard_address=None,
+                silence_logs=logging.ERROR,
+            ) as cluster,
+            Client(cluster, set_as_default=False) as client,
+        ):
+            executor = DaskExecutor(client, numba_threads=1)
+            for grid, plan in plans.items():
+                time_batches(executor, plan, SCALING_BATCH, 1)  # warm: workers import and load the kernels
+                t = time_batches(executor, plan, SCALING_BATCH, repeats)
+                scaling.add(grid=grid, executor="dask LocalCluster", workers=workers, numba_threads=1, trace_s=t,
+                            speedup=base[grid] / t, rays_per_s=n_rays / t)  # fmt: skip
+                say(f"{grid}: dask {workers} worker(s) {t:.3f} s")
+                if workers == 2:
+                    slope = _overhead_rows(overhead, executor, "dask, 2 workers", grid, plan, sizes, repeats)
+                    say(f"{grid}: dask overhead {1e3 * slope:.2f} ms/batch")
+
+
+def run(quick: bool = False, progress: Callable[[str], None] | None = None) -> Section:
+    """The section (module docstring): quick 41 x 41 rays, 1 repeat; full 61 x 61 rays, best of 2."""
+    import distributed  # noqa: F401  # the dask extra: fail before any timing when it is missing
 
     say = progress or (lambda line: None)
     el, az = (41, 41) if quick else (61, 61)
@@ -170,54 +223,8 @@ def run(quick: bool = False, progress: Callable[[str], None] | None = None) -> S
         "ms_per_batch_fit = slope of T over the batch count, us_per_ray_fit = intercept / rays",
         ["grid", "executor", "batch_rays", "batches", "trace_s", "ms_per_batch_fit", "us_per_ray_fit"],
     )
-    local = LocalExecutor()
-    base: dict[str, float] = {}
-    for grid, plan in plans.items():
-        for threads in (1, 2):
-            numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
-            t = time_batches(local, plan, SCALING_BATCH, repeats)
-            base.setdefault(grid, t)
-            scaling.add(
-                grid=grid,
-                executor="local",
-                workers=1,
-                numba_threads=threads,
-                trace_s=t,
-                speedup=base[grid] / t,
-                rays_per_s=n_rays / t,
-            )
-            say(f"{grid}: local {threads} thread(s) {t:.3f} s")
-        numba.set_num_threads(1)
-        slope = _overhead_rows(overhead, local, "local, 1 thread", grid, plan, sizes, repeats)
-        say(f"{grid}: local overhead {1e3 * slope:.2f} ms/batch")
-    for workers in (1, 2):
-        with (
-            LocalCluster(
-                n_workers=workers,
-                threads_per_worker=1,
-                processes=True,
-                dashboard_address=None,
-                silence_logs=logging.ERROR,
-            ) as cluster,
-            Client(cluster, set_as_default=False) as client,
-        ):
-            executor = DaskExecutor(client, numba_threads=1)
-            for grid, plan in plans.items():
-                time_batches(executor, plan, SCALING_BATCH, 1)  # warm: workers import and load the kernels
-                t = time_batches(executor, plan, SCALING_BATCH, repeats)
-                scaling.add(
-                    grid=grid,
-                    executor="dask LocalCluster",
-                    workers=workers,
-                    numba_threads=1,
-                    trace_s=t,
-                    speedup=base[grid] / t,
-                    rays_per_s=n_rays / t,
-                )
-                say(f"{grid}: dask {workers} worker(s) {t:.3f} s")
-                if workers == 2:
-                    slope = _overhead_rows(overhead, executor, "dask, 2 workers", grid, plan, sizes, repeats)
-                    say(f"{grid}: dask overhead {1e3 * slope:.2f} ms/batch")
+    base = _local_rows(plans, scaling, overhead, sizes, repeats, say)
+    _dask_rows(plans, scaling, overhead, sizes, repeats, base, say)
     section = Section(
         "scaling_dask", "Dask scale-out: strong scaling and overhead per batch", tables=[scaling, overhead]
     )

@@ -44,7 +44,7 @@ def measure(sc: SceneMesh, threads: int, repeats: int, min_total_s: float) -> di
     before = numba.get_num_threads()
     numba.set_num_threads(threads)
     try:
-        kw = {"max_time_s": 10.0, "max_reflections": 3}
+        kw: dict[str, Any] = {"max_time_s": 10.0, "max_reflections": 3}
         trace(sc.mesh, "parabolic", 340.0, sc.origins[:1], sc.directions[:1], sc.start_cells[:1], **kw)
         elapsed, res = best_time(
             lambda: trace(sc.mesh, "parabolic", 340.0, sc.origins, sc.directions, sc.start_cells, **kw),

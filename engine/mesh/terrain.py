@@ -228,6 +228,303 @@ def _in_footprint(p: np.ndarray, poly: np.ndarray, holes: list[np.ndarray]) -> n
 # ---------------------------------------------------------------------------------------------------
 # Builder
 # ---------------------------------------------------------------------------------------------------
+class _Plan2D(NamedTuple):
+    """The conforming 2D triangulation: xy (n2, 2) metres, tris (m, 3) int64, constraint segments segs
+    (S, 2) int64 and their footprint seg_owner (S,), and the triangulation report (recovery rounds, split
+    points, smallest angles, n_terrain_samples, n_lattice)."""
+
+    xy: np.ndarray
+    tris: np.ndarray
+    segs: np.ndarray
+    seg_owner: np.ndarray
+    report: dict
+
+
+class _Columns(NamedTuple):
+    """Footprint membership, ground and levels of the 2D vertices.
+
+    vertex_fp (n2,), tri_fp (m,) int64: footprint of each vertex / triangle (-1 outside); cen (m, 2)
+    triangle centroids, metres; ground (n2,) terrain height, metres; base_z, roof_z (n_footprints,)
+    metres; s (L + 1,) sigma levels; roof_k (n_footprints,) level pinned to each roof; points
+    (n_layers + 1) n2 x 3, metres, layer-major (point k n2 + v is vertex v at level k).
+    """
+
+    vertex_fp: np.ndarray
+    tri_fp: np.ndarray
+    cen: np.ndarray
+    ground: np.ndarray
+    base_z: np.ndarray
+    roof_z: np.ndarray
+    s: np.ndarray
+    roof_k: np.ndarray
+    points: np.ndarray
+
+
+class _PrismTables(NamedTuple):
+    """keep (m, L) bool: prism kept (False inside a building below its roof); tets (T, 4) int64 (3 per
+    prism, Morton order of the prisms); faces (T, 4, 3) sorted vertex ids of face i; nbrs, nbf (T, 4)
+    neighbour cell (-1: boundary) and its face index; planes (T, 4, 4); face_planes' quality dict qual."""
+
+    keep: np.ndarray
+    tets: np.ndarray
+    faces: np.ndarray
+    nbrs: np.ndarray
+    nbf: np.ndarray
+    planes: np.ndarray
+    qual: dict
+
+
+class _TerrainBoundary(NamedTuple):
+    """neighbours (T, 4) with boundary tags, face_material (T, 4) and the n_boundary_faces counts."""
+
+    neighbours: np.ndarray
+    face_material: np.ndarray
+    counts: dict
+
+
+def _check_terrain_arguments(surfaces: SceneSurfaces, domain_min, domain_max, top: str, gradient_method: str,
+                             layer_levels, vertical_spacing) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """(lo, hi) (3,) float64 metres; ValueError on an empty box, a bad top / gradient method, not exactly
+    one of layer_levels / vertical_spacing, or closed obstacle meshes (not supported here)."""
+    lo = np.asarray(domain_min, dtype=np.float64).reshape(3)
+    hi = np.asarray(domain_max, dtype=np.float64).reshape(3)
+    if not np.all(hi > lo):
+        raise ValueError(f"domain_max {hi} must exceed domain_min {lo} on every axis")
+    if top not in ("open", "reflect"):
+        raise ValueError(f"top must be 'open' or 'reflect', got {top!r}")
+    if gradient_method not in GRADIENT_METHODS:
+        raise ValueError(f"gradient_method must be one of {GRADIENT_METHODS}, got {gradient_method!r}")
+    if (layer_levels is None) == (vertical_spacing is None):
+        raise ValueError("give exactly one of layer_levels and vertical_spacing")
+    if surfaces.obstacles:
+        raise ValueError("closed obstacle meshes are not supported by the terrain-following mesh")
+    return lo, hi
+
+
+def _triangulate(surfaces: SceneSurfaces, polys: list[np.ndarray], terrain: _Terrain, lo: np.ndarray,
+                 hi: np.ndarray, spacing_fn: Callable, max_points_2d: int) -> _Plan2D:  # fmt: skip
+    """Step 1: box side samples and footprint rings (outer and holes) as constraints, then the terrain
+    samples and a hexagonal lattice kept clear of the sides, of the constraints (SEGMENT_SEPARATION d)
+    and of each other, and outside the segments' diametral disks; their conforming Delaunay
+    triangulation (the box sides and every footprint edge are unions of triangle edges)."""
+    ring = box_side_samples(lo[:2], hi[:2], spacing_fn)
+    rings = [r for fp, poly in zip(surfaces.footprints, polys, strict=True) for r in [poly, *fp.holes]]
+    ring_fp = np.array([f for f, fp in enumerate(surfaces.footprints) for _ in range(1 + len(fp.holes))], np.int64)
+    fp_pts, fp_segs, fp_owner = footprint_samples([np.asarray(r, dtype=np.float64) for r in rings], spacing_fn)
+    fp_owner = ring_fp[fp_owner] if len(fp_owner) else fp_owner  # ring index -> footprint index
+    segs = fp_segs + len(ring)
+    constraint = np.concatenate([ring, fp_pts])
+
+    def keep_free(p: np.ndarray, others: list[tuple[np.ndarray, float]]) -> np.ndarray:
+        if len(p) == 0:
+            return p
+        d = spacing_fn(p)
+        clear = np.minimum((p - lo[:2]).min(axis=1), (hi[:2] - p).min(axis=1)) >= SIDE_CLEARANCE * d
+        p, d = p[clear], d[clear]
+        for q, factor in others:
+            if len(q) and len(p):
+                ok = separated_from(p, factor * d, q, factor * spacing_fn(q))
+                p, d = p[ok], d[ok]
+        return p[~in_diametral_disks(p, constraint, segs)]
+
+    tsamp = keep_free(terrain.samples, [(fp_pts, SEGMENT_SEPARATION)])
+    lattice = keep_free(hex_fill(lo[:2], hi[:2], spacing_fn, ring, max_points_2d),
+                        [(fp_pts, SEGMENT_SEPARATION), (tsamp, 1.0)])  # fmt: skip
+    pts0 = np.concatenate([constraint, tsamp, lattice])
+    required = np.column_stack([np.arange(len(ring)), np.roll(np.arange(len(ring)), -1)])
+    xy, tris, segs, seg_owner, tri_report = conforming_delaunay(pts0, segs, fp_owner[fp_segs[:, 0]], required)
+    report = {**tri_report, "n_terrain_samples": int(len(tsamp)), "n_lattice": int(len(lattice))}
+    return _Plan2D(xy, tris, segs, seg_owner, report)
+
+
+def _footprint_membership(plan: _Plan2D, polys: list[np.ndarray],
+                          footprints: list[Footprint]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """Footprint of every 2D vertex (n2,) and triangle (m,) (-1 outside; a triangle by its centroid, a
+    vertex by its constraint segments and the triangles inside), and the centroids (m, 2) metres."""
+    xy, tris = plan.xy, plan.tris
+    vertex_fp = np.full(len(xy), -1, dtype=np.int64)
+    vertex_fp[plan.segs.ravel()] = np.repeat(plan.seg_owner, 2)
+    tri_fp = np.full(len(tris), -1, dtype=np.int64)
+    cen = xy[tris].mean(axis=1)
+    for f, poly in enumerate(polys):
+        cand = np.flatnonzero(np.all((cen >= poly.min(axis=0)) & (cen <= poly.max(axis=0)), axis=1))
+        tri_fp[cand[_in_footprint(cen[cand], poly, footprints[f].holes)]] = f
+    inside_tris = np.flatnonzero(tri_fp >= 0)
+    vertex_fp[tris[inside_tris].ravel()] = np.repeat(tri_fp[inside_tris], 3)
+    return vertex_fp, tri_fp, cen
+
+
+def _roof_heights(footprints: list[Footprint], polys: list[np.ndarray], terrain: _Terrain, ground: np.ndarray,
+                  vertex_fp: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """(base_z, roof_z) (n_footprints,) metres: base_z given, or the lowest terrain height under the
+    footprint (its 2D vertices and the input samples inside it); roof_z = base_z + height_m. ValueError
+    when a roof is not above the terrain under it or not below domain_max z."""
+    roof_z = np.empty(len(polys))
+    base_z = np.empty(len(polys))
+    for f, (fp, poly) in enumerate(zip(footprints, polys, strict=True)):
+        g_f = ground[vertex_fp == f]
+        if fp.base_z is None:
+            s_in = terrain.samples_in(poly)
+            s_in = s_in[_in_footprint(s_in, poly, fp.holes)] if fp.holes and len(s_in) else s_in
+            base_z[f] = float(np.concatenate([g_f, terrain.height(s_in) if len(s_in) else []]).min())
+        else:
+            base_z[f] = float(fp.base_z)
+        roof_z[f] = base_z[f] + float(fp.height_m)
+        if not (roof_z[f] < hi[2]) or not np.all(g_f < roof_z[f]):
+            raise ValueError(f"footprint {fp.name or f}: roof z = {roof_z[f]:g} must be above the terrain under "
+                             f"it (max {g_f.max():g}) and below domain_max z")  # fmt: skip
+    return base_z, roof_z
+
+
+def _columns(surfaces: SceneSurfaces, polys: list[np.ndarray], terrain: _Terrain, plan: _Plan2D, lo: np.ndarray,
+             hi: np.ndarray, layer_levels, vertical_spacing) -> _Columns:  # fmt: skip
+    """Steps 2-3: footprint membership, ground heights (ValueError unless in [lo z, hi z)), roofs, sigma
+    levels (given, or from the vertical spacing on the tallest column) with one level pinned to each
+    roof, and the layer-major 3D points."""
+    xy = plan.xy
+    vertex_fp, tri_fp, cen = _footprint_membership(plan, polys, list(surfaces.footprints))
+    ground = terrain.height(xy)
+    if not np.all(np.isfinite(ground)) or ground.min() < lo[2] or ground.max() >= hi[2]:
+        raise ValueError("the terrain must lie in [domain_min z, domain_max z) over the domain")
+    base_z, roof_z = _roof_heights(list(surfaces.footprints), polys, terrain, ground, vertex_fp, hi)
+    if layer_levels is not None:
+        s = check_sigma_levels(layer_levels)
+    else:
+        assert vertical_spacing is not None  # exactly one of the two (checked by the caller)
+        s = sigma_levels(float(hi[2] - ground.min()), vertical_spacing)
+    roof_k = roof_levels(s, ground, float(hi[2]), vertex_fp, roof_z)
+    z = column_levels(ground, s, float(hi[2]), vertex_fp, roof_z, roof_k)
+    layered = np.empty((len(s), len(xy), 3))
+    layered[:, :, :2] = xy[None]
+    layered[:, :, 2] = z
+    return _Columns(vertex_fp, tri_fp, cen, ground, base_z, roof_z, s, roof_k, layered.reshape(-1, 3))
+
+
+def _prism_tables(plan: _Plan2D, col: _Columns, lo: np.ndarray, hi: np.ndarray) -> _PrismTables:
+    """Steps 3-4: the kept prisms in Morton order, 3 tets each (consistent diagonals), face hash
+    neighbours and shared planes; MeshBuildError on flat tets."""
+    xy, tris = plan.xy, plan.tris
+    n2, m, n_layers = len(xy), len(tris), len(col.s) - 1
+    keep = np.ones((m, n_layers), dtype=bool)
+    inside_tris = np.flatnonzero(col.tri_fp >= 0)
+    if len(inside_tris):
+        keep[inside_tris] = np.arange(n_layers)[None, :] >= col.roof_k[col.tri_fp[inside_tris]][:, None]
+    p_tri, p_layer = np.nonzero(keep)
+    width = float(np.sqrt(np.prod(hi[:2] - lo[:2]) / max(m, 1)))
+    order = morton_prism_order(col.cen[p_tri], p_layer, width)
+    p_tri, p_layer = p_tri[order], p_layer[order]
+    tri_sorted = np.sort(tris, axis=1)
+    ps = xy[tri_sorted]
+    ccw = ((ps[:, 1, 0] - ps[:, 0, 0]) * (ps[:, 2, 1] - ps[:, 0, 1])
+           - (ps[:, 1, 1] - ps[:, 0, 1]) * (ps[:, 2, 0] - ps[:, 0, 0])) > 0  # fmt: skip
+    tets = prism_tets(tri_sorted, ccw, n2, p_tri, p_layer)
+    faces = face_vertices(tets)
+    nbrs, nbf = match_faces(faces, n2, len(col.points))
+    planes, qual = face_planes(col.points, tets, faces, nbrs, nbf)
+    vol, longest = qual["volume"], qual["longest_edge"]
+    if np.any(6.0 * vol <= DEGENERATE_VOL_REL * longest**3):
+        raise MeshBuildError(f"{int((6.0 * vol <= DEGENERATE_VOL_REL * longest**3).sum())} flat tets")
+    return _PrismTables(keep, tets, faces, nbrs, nbf, planes, qual)
+
+
+def _ground_materials(surfaces: SceneSurfaces, terrain: _Terrain, ground_xy: np.ndarray) -> np.ndarray:
+    """Material (k,) of ground faces with centroids ground_xy (k, 2) metres: the terrain's material, then
+    the ground zones (later zones win)."""
+    ground_mat = terrain.material(ground_xy)
+    for zone in surfaces.ground_zones:  # later zones win; each face takes the zone under its centroid
+        ground_mat[_in_footprint(ground_xy, np.asarray(zone.polygon, np.float64), zone.holes)] = zone.material
+    return ground_mat
+
+
+def _terrain_boundary(surfaces: SceneSurfaces, terrain: _Terrain, plan: _Plan2D, col: _Columns,
+                      tab: _PrismTables, lo: np.ndarray, hi: np.ndarray, top: str) -> _TerrainBoundary:  # fmt: skip
+    """Step 4, boundary tags: ground (level-0 faces) and building faces (all vertices of one footprint)
+    BOUNDARY_REFLECT with the ground / footprint material, box sides BOUNDARY_OPEN, the top as asked;
+    MeshBuildError for a boundary face that is none of these."""
+    xy, n2, n_layers, vertex_fp = plan.xy, len(plan.xy), len(col.s) - 1, col.vertex_fp
+    bc, bf = np.nonzero(tab.nbrs < 0)
+    fv = tab.faces[bc, bf]
+    lay, v2 = fv // n2, fv % n2
+    is_ground = np.all(lay == 0, axis=1)
+    is_top = np.all(lay == n_layers, axis=1)
+    is_side = np.zeros(len(bc), dtype=bool)
+    for ax in (0, 1):
+        for val in (lo[ax], hi[ax]):
+            is_side |= np.all(xy[v2, ax] == val, axis=1)
+    owner = vertex_fp[v2[:, 0]]
+    is_bldg = ~(is_ground | is_top | is_side)
+    if np.any(is_bldg & ((owner < 0) | np.any(vertex_fp[v2] != owner[:, None], axis=1))):
+        raise MeshBuildError("a boundary face is neither ground, top, side nor a building face")
+    is_roof = is_bldg & np.all(lay == lay[:, :1], axis=1)
+    neighbours = tab.nbrs.copy()
+    neighbours[bc, bf] = np.where(is_ground | is_bldg, BOUNDARY_REFLECT,
+                                  np.where(is_top & (top == "reflect"), BOUNDARY_REFLECT, BOUNDARY_OPEN))  # fmt: skip
+    face_material = np.zeros((len(tab.tets), 4), dtype=np.int64)
+    gi = np.flatnonzero(is_ground)
+    face_material[bc[gi], bf[gi]] = _ground_materials(surfaces, terrain, xy[v2[gi]].mean(axis=1))
+    bi = np.flatnonzero(is_bldg)
+    fp_mat = np.array([fp.material for fp in surfaces.footprints], dtype=np.int64)
+    face_material[bc[bi], bf[bi]] = fp_mat[owner[bi]] if len(bi) else 0
+    counts = {
+        "ground": int(is_ground.sum()),
+        "walls": int((is_bldg & ~is_roof).sum()),
+        "roofs": int(is_roof.sum()),
+        "top": int(is_top.sum()),
+        "sides": int(is_side.sum()),
+        "reflect": int((neighbours == BOUNDARY_REFLECT).sum()),
+        "open": int((neighbours == BOUNDARY_OPEN).sum()),
+    }
+    return _TerrainBoundary(neighbours, face_material, counts)
+
+
+def _terrain_stats(
+    surfaces: SceneSurfaces,
+    plan: _Plan2D,
+    col: _Columns,
+    tab: _PrismTables,
+    bnd: _TerrainBoundary,
+    gradient_method: str,
+    n_fallback: int,
+    times: list[float],
+) -> dict:
+    """The ``stats`` of ``build_terrain_mesh`` (times: perf_counter at start, after the 2D
+    triangulation, after the tables, after the gradients)."""
+    t0, t1, t2, t3 = times
+    used = np.zeros(len(col.points), dtype=bool)
+    used[tab.tets.ravel()] = True
+    return {
+        "n_vertices_2d": int(len(plan.xy)),
+        "n_triangles_2d": int(len(plan.tris)),
+        "n_layers": int(len(col.s) - 1),
+        "n_points": int(len(col.points)),
+        "n_unused_points": int((~used).sum()),
+        "n_cells": int(len(tab.tets)),
+        "n_cells_removed": int(3 * (tab.keep.size - tab.keep.sum())),
+        "n_degenerate": 0,
+        "sigma_levels": col.s.tolist(),
+        "triangulation": plan.report,
+        "roofs": [
+            {
+                "name": fp.name,
+                "base_z": float(col.base_z[f]),
+                "roof_z": float(col.roof_z[f]),
+                "level": int(col.roof_k[f]),
+            }
+            for f, fp in enumerate(surfaces.footprints)
+        ],  # fmt: skip
+        **tab.qual["summary"],
+        "n_boundary_faces": bnd.counts,
+        "gradient_method": gradient_method,
+        "n_lsq_fallback": n_fallback,
+        "build_time_s": {
+            "triangulation_2d": t1 - t0,
+            "tables": t2 - t1,
+            "gradients": t3 - t2,
+            "total": time.perf_counter() - t0,
+        },  # fmt: skip
+    }
+
+
 def build_terrain_mesh(
     surfaces: SceneSurfaces,
     domain_min,
@@ -274,185 +571,23 @@ def build_terrain_mesh(
     ValueError on bad arguments; MeshBuildError when the build fails its own checks.
     """
     t0 = time.perf_counter()
-    lo = np.asarray(domain_min, dtype=np.float64).reshape(3)
-    hi = np.asarray(domain_max, dtype=np.float64).reshape(3)
-    if not np.all(hi > lo):
-        raise ValueError(f"domain_max {hi} must exceed domain_min {lo} on every axis")
-    if top not in ("open", "reflect"):
-        raise ValueError(f"top must be 'open' or 'reflect', got {top!r}")
-    if gradient_method not in GRADIENT_METHODS:
-        raise ValueError(f"gradient_method must be one of {GRADIENT_METHODS}, got {gradient_method!r}")
-    if (layer_levels is None) == (vertical_spacing is None):
-        raise ValueError("give exactly one of layer_levels and vertical_spacing")
-    if surfaces.obstacles:
-        raise ValueError("closed obstacle meshes are not supported by the terrain-following mesh")
+    lo, hi = _check_terrain_arguments(surfaces, domain_min, domain_max, top, gradient_method, layer_levels,
+                                      vertical_spacing)  # fmt: skip
     spacing_fn = checked_spacing_2d(horizontal_spacing)
     polys = _check_footprints(list(surfaces.footprints), lo, hi)
     terrain = _terrain(surfaces.terrain, lo, hi, spacing_fn)
-
-    # --- 2D point set and conforming triangulation ------------------------------------------------------
-    ring = box_side_samples(lo[:2], hi[:2], spacing_fn)
-    rings = [r for fp, poly in zip(surfaces.footprints, polys, strict=True) for r in [poly, *fp.holes]]
-    ring_fp = np.array([f for f, fp in enumerate(surfaces.footprints) for _ in range(1 + len(fp.holes))], np.int64)
-    fp_pts, fp_segs, fp_owner = footprint_samples([np.asarray(r, dtype=np.float64) for r in rings], spacing_fn)
-    fp_owner = ring_fp[fp_owner] if len(fp_owner) else fp_owner  # ring index -> footprint index
-    segs = fp_segs + len(ring)
-    constraint = np.concatenate([ring, fp_pts])
-
-    def keep_free(p: np.ndarray, others: list[tuple[np.ndarray, float]]) -> np.ndarray:
-        if len(p) == 0:
-            return p
-        d = spacing_fn(p)
-        clear = np.minimum((p - lo[:2]).min(axis=1), (hi[:2] - p).min(axis=1)) >= SIDE_CLEARANCE * d
-        p, d = p[clear], d[clear]
-        for q, factor in others:
-            if len(q) and len(p):
-                ok = separated_from(p, factor * d, q, factor * spacing_fn(q))
-                p, d = p[ok], d[ok]
-        return p[~in_diametral_disks(p, constraint, segs)]
-
-    tsamp = keep_free(terrain.samples, [(fp_pts, SEGMENT_SEPARATION)])
-    lattice = keep_free(hex_fill(lo[:2], hi[:2], spacing_fn, ring, max_points_2d),
-                        [(fp_pts, SEGMENT_SEPARATION), (tsamp, 1.0)])  # fmt: skip
-    pts0 = np.concatenate([constraint, tsamp, lattice])
-    required = np.column_stack([np.arange(len(ring)), np.roll(np.arange(len(ring)), -1)])
-    xy, tris, segs, seg_owner, tri_report = conforming_delaunay(pts0, segs, fp_owner[fp_segs[:, 0]], required)
-    n2, m = len(xy), len(tris)
+    plan = _triangulate(surfaces, polys, terrain, lo, hi, spacing_fn, max_points_2d)
     t1 = time.perf_counter()
-
-    # --- footprint membership, ground, roofs, levels ------------------------------------------------------
-    vertex_fp = np.full(n2, -1, dtype=np.int64)
-    vertex_fp[segs.ravel()] = np.repeat(seg_owner, 2)
-    tri_fp = np.full(m, -1, dtype=np.int64)
-    cen = xy[tris].mean(axis=1)
-    for f, poly in enumerate(polys):
-        cand = np.flatnonzero(np.all((cen >= poly.min(axis=0)) & (cen <= poly.max(axis=0)), axis=1))
-        tri_fp[cand[_in_footprint(cen[cand], poly, surfaces.footprints[f].holes)]] = f
-    inside_tris = np.flatnonzero(tri_fp >= 0)
-    vertex_fp[tris[inside_tris].ravel()] = np.repeat(tri_fp[inside_tris], 3)
-    ground = terrain.height(xy)
-    if not np.all(np.isfinite(ground)) or ground.min() < lo[2] or ground.max() >= hi[2]:
-        raise ValueError("the terrain must lie in [domain_min z, domain_max z) over the domain")
-    roof_z = np.empty(len(polys))
-    base_z = np.empty(len(polys))
-    for f, (fp, poly) in enumerate(zip(surfaces.footprints, polys, strict=True)):
-        g_f = ground[vertex_fp == f]
-        if fp.base_z is None:
-            s_in = terrain.samples_in(poly)
-            s_in = s_in[_in_footprint(s_in, poly, fp.holes)] if fp.holes and len(s_in) else s_in
-            base_z[f] = float(np.concatenate([g_f, terrain.height(s_in) if len(s_in) else []]).min())
-        else:
-            base_z[f] = float(fp.base_z)
-        roof_z[f] = base_z[f] + float(fp.height_m)
-        if not (roof_z[f] < hi[2]) or not np.all(g_f < roof_z[f]):
-            raise ValueError(f"footprint {fp.name or f}: roof z = {roof_z[f]:g} must be above the terrain under "
-                             f"it (max {g_f.max():g}) and below domain_max z")  # fmt: skip
-    if layer_levels is not None:
-        s = check_sigma_levels(layer_levels)
-    else:
-        assert vertical_spacing is not None  # exactly one of the two (checked above)
-        s = sigma_levels(float(hi[2] - ground.min()), vertical_spacing)
-    n_layers = len(s) - 1
-    roof_k = roof_levels(s, ground, float(hi[2]), vertex_fp, roof_z)
-    z = column_levels(ground, s, float(hi[2]), vertex_fp, roof_z, roof_k)
-    layered = np.empty((n_layers + 1, n2, 3))
-    layered[:, :, :2] = xy[None]
-    layered[:, :, 2] = z
-    points = layered.reshape(-1, 3)
-
-    # --- prisms, tets, neighbours, planes -------------------------------------------------------------
-    keep = np.ones((m, n_layers), dtype=bool)
-    if len(inside_tris):
-        keep[inside_tris] = np.arange(n_layers)[None, :] >= roof_k[tri_fp[inside_tris]][:, None]
-    p_tri, p_layer = np.nonzero(keep)
-    width = float(np.sqrt(np.prod(hi[:2] - lo[:2]) / max(m, 1)))
-    order = morton_prism_order(cen[p_tri], p_layer, width)
-    p_tri, p_layer = p_tri[order], p_layer[order]
-    tri_sorted = np.sort(tris, axis=1)
-    ps = xy[tri_sorted]
-    ccw = ((ps[:, 1, 0] - ps[:, 0, 0]) * (ps[:, 2, 1] - ps[:, 0, 1])
-           - (ps[:, 1, 1] - ps[:, 0, 1]) * (ps[:, 2, 0] - ps[:, 0, 0])) > 0  # fmt: skip
-    tets = prism_tets(tri_sorted, ccw, n2, p_tri, p_layer)
-    t = len(tets)
-    faces = face_vertices(tets)
-    nbrs, nbf = match_faces(faces, n2, len(points))
-    planes, qual = face_planes(points, tets, faces, nbrs, nbf)
-    vol, longest = qual["volume"], qual["longest_edge"]
-    if np.any(6.0 * vol <= DEGENERATE_VOL_REL * longest**3):
-        raise MeshBuildError(f"{int((6.0 * vol <= DEGENERATE_VOL_REL * longest**3).sum())} flat tets")
-
-    bc, bf = np.nonzero(nbrs < 0)
-    fv = faces[bc, bf]
-    lay, v2 = fv // n2, fv % n2
-    is_ground = np.all(lay == 0, axis=1)
-    is_top = np.all(lay == n_layers, axis=1)
-    is_side = np.zeros(len(bc), dtype=bool)
-    for ax in (0, 1):
-        for val in (lo[ax], hi[ax]):
-            is_side |= np.all(xy[v2, ax] == val, axis=1)
-    owner = vertex_fp[v2[:, 0]]
-    is_bldg = ~(is_ground | is_top | is_side)
-    if np.any(is_bldg & ((owner < 0) | np.any(vertex_fp[v2] != owner[:, None], axis=1))):
-        raise MeshBuildError("a boundary face is neither ground, top, side nor a building face")
-    is_roof = is_bldg & np.all(lay == lay[:, :1], axis=1)
-    neighbours = nbrs.copy()
-    neighbours[bc, bf] = np.where(is_ground | is_bldg, BOUNDARY_REFLECT,
-                                  np.where(is_top & (top == "reflect"), BOUNDARY_REFLECT, BOUNDARY_OPEN))  # fmt: skip
-    face_material = np.zeros((t, 4), dtype=np.int64)
-    gi = np.flatnonzero(is_ground)
-    ground_xy = xy[v2[gi]].mean(axis=1)
-    ground_mat = terrain.material(ground_xy)
-    for zone in surfaces.ground_zones:  # later zones win; each face takes the zone under its centroid
-        ground_mat[_in_footprint(ground_xy, np.asarray(zone.polygon, np.float64), zone.holes)] = zone.material
-    face_material[bc[gi], bf[gi]] = ground_mat
-    bi = np.flatnonzero(is_bldg)
-    fp_mat = np.array([fp.material for fp in surfaces.footprints], dtype=np.int64)
-    face_material[bc[bi], bf[bi]] = fp_mat[owner[bi]] if len(bi) else 0
+    col = _columns(surfaces, polys, terrain, plan, lo, hi, layer_levels, vertical_spacing)
+    tab = _prism_tables(plan, col, lo, hi)
+    bnd = _terrain_boundary(surfaces, terrain, plan, col, tab, lo, hi, top)
     t2 = time.perf_counter()
-
-    # --- media and gradients ----------------------------------------------------------------------------
-    cells, vertex_values, n_fallback = tet_cell_mesh(
-        points, tets, planes, neighbours, nbf, longest, face_material, quantity_at, gradient_method
-    )
+    cells, vertex_values, n_fallback = tet_cell_mesh(col.points, tab.tets, tab.planes, bnd.neighbours, tab.nbf,
+                                                     tab.qual["longest_edge"], bnd.face_material, quantity_at,
+                                                     gradient_method)  # fmt: skip
     t3 = time.perf_counter()
-
-    used = np.zeros(len(points), dtype=bool)
-    used[tets.ravel()] = True
-    stats = {
-        "n_vertices_2d": int(n2),
-        "n_triangles_2d": int(m),
-        "n_layers": int(n_layers),
-        "n_points": int(len(points)),
-        "n_unused_points": int((~used).sum()),
-        "n_cells": int(t),
-        "n_cells_removed": int(3 * (keep.size - keep.sum())),
-        "n_degenerate": 0,
-        "sigma_levels": s.tolist(),
-        "triangulation": {**tri_report, "n_terrain_samples": int(len(tsamp)), "n_lattice": int(len(lattice))},
-        "roofs": [
-            {"name": fp.name, "base_z": float(base_z[f]), "roof_z": float(roof_z[f]), "level": int(roof_k[f])}
-            for f, fp in enumerate(surfaces.footprints)
-        ],  # fmt: skip
-        **qual["summary"],
-        "n_boundary_faces": {
-            "ground": int(is_ground.sum()),
-            "walls": int((is_bldg & ~is_roof).sum()),
-            "roofs": int(is_roof.sum()),
-            "top": int(is_top.sum()),
-            "sides": int(is_side.sum()),
-            "reflect": int((neighbours == BOUNDARY_REFLECT).sum()),
-            "open": int((neighbours == BOUNDARY_OPEN).sum()),
-        },
-        "gradient_method": gradient_method,
-        "n_lsq_fallback": n_fallback,
-        "build_time_s": {
-            "triangulation_2d": t1 - t0,
-            "tables": t2 - t1,
-            "gradients": t3 - t2,
-            "total": time.perf_counter() - t0,
-        },  # fmt: skip
-    }
-    return TetMesh(cells=cells, points=points, tets=tets, stats=stats, vertex_values=vertex_values)
+    stats = _terrain_stats(surfaces, plan, col, tab, bnd, gradient_method, n_fallback, [t0, t1, t2, t3])
+    return TetMesh(cells=cells, points=col.points, tets=tab.tets, stats=stats, vertex_values=vertex_values)
 
 
 # ---------------------------------------------------------------------------------------------------

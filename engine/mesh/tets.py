@@ -238,6 +238,232 @@ def _summary(x: np.ndarray, pct=(50,)) -> dict:
 # ---------------------------------------------------------------------------------------------------
 # Builder
 # ---------------------------------------------------------------------------------------------------
+_EDGE_PAIRS = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
+
+
+class _Samples(NamedTuple):
+    """The Delaunay input: points (P, 3) metres (boundary samples first, then the kept interior samples),
+    the boundary count B, the kept interior count and the number of interior samples dropped."""
+
+    points: np.ndarray
+    n_boundary: int
+    n_interior: int
+    n_dropped: int
+
+
+class _Tets(NamedTuple):
+    """Positively oriented tets in Morton order and their geometry.
+
+    tets : (T, 4) int64 vertex ids; nbrs : (T, 4) int64 cell across face i (-1: hull face); vol6 : (T,)
+    |6 V| m^3; edge_len : (T, 6) edge lengths, metres (pairs of _EDGE_PAIRS of the unoriented tet);
+    longest : (T,) longest edge, metres; n_face_slivers : zero-volume hull slivers removed.
+    """
+
+    tets: np.ndarray
+    nbrs: np.ndarray
+    vol6: np.ndarray
+    edge_len: np.ndarray
+    longest: np.ndarray
+    n_face_slivers: int
+
+
+class _BoxFaces(NamedTuple):
+    """Boundary faces (nb = their count) and their tags: neighbours (T, 4) int64 with the hull faces
+    tagged; on_ground, on_top (nb,) bool masks; tags (nb,) int64 BOUNDARY_REFLECT / BOUNDARY_OPEN."""
+
+    neighbours: np.ndarray
+    on_ground: np.ndarray
+    on_top: np.ndarray
+    tags: np.ndarray
+
+
+def _check_box_arguments(domain_min, domain_max, ground: str, top: str,
+                         gradient_method: str) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """(lo, hi) (3,) float64 metres of the box; ValueError on an empty box or an unknown tag / method."""
+    lo = np.asarray(domain_min, dtype=np.float64).reshape(3)
+    hi = np.asarray(domain_max, dtype=np.float64).reshape(3)
+    if not np.all(hi > lo):
+        raise ValueError(f"domain_max {hi} must exceed domain_min {lo} on every axis")
+    for name, val in (("ground", ground), ("top", top)):
+        if val not in ("reflect", "open"):
+            raise ValueError(f"{name} must be 'reflect' or 'open', got {val!r}")
+    if gradient_method not in GRADIENT_METHODS:
+        raise ValueError(f"gradient_method must be one of {GRADIENT_METHODS}, got {gradient_method!r}")
+    return lo, hi
+
+
+def _resample(lo: np.ndarray, hi: np.ndarray, interior: np.ndarray, spacing: Callable | None,
+              rng: np.random.Generator) -> _Samples:  # fmt: skip
+    """Boundary samples of the box plus the interior samples (N, 3) m that are strictly inside, clear of
+    the faces (BOUNDARY_CLEARANCE d) and of the boundary samples (BOUNDARY_SEPARATION d), jittered by
+    JITTER_REL d. ``spacing`` d (metres) defaults to the interior nearest-neighbour distance."""
+    interior = interior[np.all((interior > lo) & (interior < hi), axis=1)]
+    if spacing is not None:
+        spacing_fn = _checked_spacing(spacing)
+    else:
+        spacing_fn = _nn_spacing(interior, default=float((hi - lo).min()))
+    bpts, bd = _boundary_samples(lo, hi, spacing_fn, rng)
+    n_in0 = len(interior)
+    if len(interior):
+        di = spacing_fn(interior)
+        clearance = np.minimum((interior - lo).min(axis=1), (hi - interior).min(axis=1))
+        keep = clearance >= BOUNDARY_CLEARANCE * di
+        interior, di = interior[keep], di[keep]
+    if len(interior):
+        keep = separated_from(interior, BOUNDARY_SEPARATION * di, bpts, BOUNDARY_SEPARATION * bd)
+        interior, di = interior[keep], di[keep]
+        interior = interior + rng.uniform(-1, 1, interior.shape) * (JITTER_REL * di)[:, None]
+    points = np.ascontiguousarray(np.concatenate([bpts, interior]))
+    return _Samples(points, len(bpts), len(interior), n_in0 - len(interior))
+
+
+def _delaunay(points: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """qhull's tets (T, 4) and neighbours (T, 4) (-1: hull face) of ``points`` (P, 3), minus the
+    zero-volume slivers that joggling leaves on the box faces (4 samples of one face; their neighbours'
+    faces on that plane become hull faces), and the number of slivers removed."""
+    tri = Delaunay(points, qhull_options=QHULL_OPTIONS)
+    tets = tri.simplices.astype(np.int64)
+    nbrs = tri.neighbors.astype(np.int64)
+    on_plane = np.zeros(len(tets), dtype=bool)
+    tp = points[tets]
+    for ax in range(3):
+        for val in (lo[ax], hi[ax]):
+            on_plane |= np.all(tp[:, :, ax] == val, axis=1)
+    n_face_slivers = int(on_plane.sum())
+    if n_face_slivers:
+        keep_idx = np.flatnonzero(~on_plane)
+        remap = np.full(len(tets), -1, dtype=np.int64)
+        remap[keep_idx] = np.arange(len(keep_idx))
+        tets, nbrs = tets[keep_idx], nbrs[keep_idx]
+        nbrs = np.where(nbrs >= 0, remap[np.maximum(nbrs, 0)], -1)
+    return tets, nbrs, n_face_slivers
+
+
+def _orient_and_order(points: np.ndarray, tets: np.ndarray, nbrs: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                      n_face_slivers: int) -> _Tets:  # fmt: skip
+    """Flip negative tets (swap vertices 0 and 1 with their faces), reject flat ones (ValueError) and
+    sort the cells along a Morton curve of their centroids (neighbour ids renumbered)."""
+    p = points[tets]
+    e = p[:, 1:, :] - p[:, :1, :]
+    vol6 = np.linalg.det(e)
+    neg = vol6 < 0
+    tets[neg, 0], tets[neg, 1] = tets[neg, 1], tets[neg, 0].copy()
+    nbrs[neg, 0], nbrs[neg, 1] = nbrs[neg, 1], nbrs[neg, 0].copy()
+    vol6 = np.abs(vol6)
+    edge_len = np.linalg.norm(p[:, _EDGE_PAIRS[:, 0]] - p[:, _EDGE_PAIRS[:, 1]], axis=2)  # (T, 6)
+    longest = edge_len.max(axis=1)
+    flat = vol6 <= DEGENERATE_VOL_REL * longest**3
+    if np.any(flat):
+        raise ValueError(
+            f"Delaunay returned {int(flat.sum())} flat tets (|6V| <= {DEGENERATE_VOL_REL:g} * edge^3) "
+            "despite the jitter; the input points are degenerate (duplicates or exactly cospherical)"
+        )
+    order = _morton_order(p.mean(axis=1), lo, hi)
+    inv = np.empty_like(order)
+    inv[order] = np.arange(len(order))
+    tets = np.ascontiguousarray(tets[order])
+    nbrs = nbrs[order]
+    nbrs = np.where(nbrs >= 0, inv[np.maximum(nbrs, 0)], -1)
+    return _Tets(tets, nbrs, vol6[order], edge_len[order], longest[order], n_face_slivers)
+
+
+def _neighbour_faces(nbrs: np.ndarray) -> np.ndarray:
+    """neighbour_face (T, 4) int64: the index of face i of cell c in the cell across it (-1 on the hull);
+    ValueError if the neighbour table is not symmetric."""
+    nbf = np.full(nbrs.shape, -1, dtype=np.int64)
+    ci, fi = np.nonzero(nbrs >= 0)
+    match = nbrs[nbrs[ci, fi]] == ci[:, None]
+    if not np.all(match.sum(axis=1) == 1):
+        raise ValueError("Delaunay neighbour table is not symmetric")
+    nbf[ci, fi] = match.argmax(axis=1)
+    return nbf
+
+
+def _box_faces(points: np.ndarray, tets: np.ndarray, nbrs: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+               ground: str, top: str) -> _BoxFaces:  # fmt: skip
+    """Tag the hull faces by the box plane holding all three of their vertices (exact: boundary samples
+    are never moved off their planes): ground / top as asked, sides BOUNDARY_OPEN; ValueError if a hull
+    face is on no box plane."""
+    neighbours = nbrs.copy()
+    bc, bf = np.nonzero(nbrs < 0)
+    fv = np.stack([tets[bc, (bf + k) % 4] for k in (1, 2, 3)], axis=1)  # the face's 3 vertices
+    fp = points[fv]  # (nb, 3, 3)
+    on_ground = np.all(fp[:, :, 2] == lo[2], axis=1)
+    on_top = np.all(fp[:, :, 2] == hi[2], axis=1)
+    on_side = np.zeros(len(bc), dtype=bool)
+    for ax in (0, 1):
+        on_side |= np.all(fp[:, :, ax] == lo[ax], axis=1) | np.all(fp[:, :, ax] == hi[ax], axis=1)
+    if not np.all(on_ground | on_top | on_side):
+        raise ValueError(f"{int((~(on_ground | on_top | on_side)).sum())} hull faces are not on the box")
+    tag_ground = BOUNDARY_REFLECT if ground == "reflect" else BOUNDARY_OPEN
+    tag_top = BOUNDARY_REFLECT if top == "reflect" else BOUNDARY_OPEN
+    tags = np.where(on_ground, tag_ground, np.where(on_top, tag_top, BOUNDARY_OPEN))
+    neighbours[bc, bf] = tags
+    return _BoxFaces(neighbours, on_ground, on_top, tags)
+
+
+def _box_cells(
+    points: np.ndarray,
+    tt: _Tets,
+    planes: np.ndarray,
+    faces: _BoxFaces,
+    nbf: np.ndarray,
+    quantity: Callable[[np.ndarray], np.ndarray],
+    gradient_method: str,
+) -> tuple[CellMesh, np.ndarray, int]:
+    """The CellMesh of the tets (outward face planes (T, 4, 4)) with the traced quantity m: vertex
+    values m_v = quantity(points) (P,), reference point = centroid, media_ref = mean of the 4 vertex
+    values, gradient (T, 3) per metre by least squares on the face neighbours (Green-Gauss fallback) or
+    Green-Gauss alone. Returns (cells, vertex values, number of least-squares fallbacks); ValueError on
+    non-finite values."""
+    tets = tt.tets
+    t = len(tets)
+    vertex_values = np.asarray(quantity(points), dtype=np.float64).reshape(-1)
+    if vertex_values.shape != (len(points),) or not np.all(np.isfinite(vertex_values)):
+        raise ValueError("quantity must return one finite value per point")
+    centroids = points[tets].mean(axis=1)
+    media_ref = vertex_values[tets].mean(axis=1)
+    gg = green_gauss_gradients(points, tets, vertex_values)
+    if gradient_method == "green_gauss":
+        grad, fallback = gg, np.ones(t, dtype=bool)
+    else:
+        grad, fallback = lsq_gradients(centroids, media_ref, faces.neighbours, weighted=gradient_method == "lsq",
+                                       fallback=gg)  # fmt: skip
+    cells = CellMesh(
+        planes=np.ascontiguousarray(planes),
+        neighbours=np.ascontiguousarray(faces.neighbours),
+        neighbour_face=nbf,
+        media_ref=np.ascontiguousarray(media_ref),
+        ref_point=np.ascontiguousarray(centroids),
+        gradient=np.ascontiguousarray(grad),
+        size=np.ascontiguousarray(tt.longest),
+        face_material=np.zeros((t, 4), dtype=np.int64),
+    )
+    return cells, vertex_values, int(fallback.sum()) if gradient_method != "green_gauss" else 0
+
+
+def _tet_quality(points: np.ndarray, tt: _Tets) -> dict:
+    """Counts and quality summaries of the mesh (the stats keys of ``build_tet_mesh`` on geometry)."""
+    tets = tt.tets
+    used = np.zeros(len(points), dtype=bool)
+    used[tets.ravel()] = True
+    radius_edge = _circumradius(points[tets]) / tt.edge_len.min(axis=1)
+    flat_edges = np.sort(tets[:, _EDGE_PAIRS], axis=2).reshape(-1, 2)
+    uniq = np.unique(flat_edges[:, 0] * len(points) + flat_edges[:, 1])
+    ulen = np.linalg.norm(points[uniq // len(points)] - points[uniq % len(points)], axis=1)
+    return {
+        "n_points": int(used.sum()),
+        "n_unused_points": int((~used).sum()),
+        "n_cells": int(len(tets)),
+        "n_degenerate": 0,
+        "n_face_slivers_removed": tt.n_face_slivers,
+        "edge_length": _summary(ulen),
+        "size": _summary(tt.longest),
+        "radius_edge": _summary(radius_edge, pct=(50, 99)),
+        "volume_total": float(tt.vol6.sum() / 6.0),
+    }
+
+
 def build_tet_mesh(
     domain_min,
     domain_max,
@@ -279,167 +505,36 @@ def build_tet_mesh(
     ValueError on bad arguments or when qhull returns flat tets or a hull that is not the box.
     """
     t0 = time.perf_counter()
-    lo = np.asarray(domain_min, dtype=np.float64).reshape(3)
-    hi = np.asarray(domain_max, dtype=np.float64).reshape(3)
-    if not np.all(hi > lo):
-        raise ValueError(f"domain_max {hi} must exceed domain_min {lo} on every axis")
-    for name, val in (("ground", ground), ("top", top)):
-        if val not in ("reflect", "open"):
-            raise ValueError(f"{name} must be 'reflect' or 'open', got {val!r}")
-    if gradient_method not in GRADIENT_METHODS:
-        raise ValueError(f"gradient_method must be one of {GRADIENT_METHODS}, got {gradient_method!r}")
+    lo, hi = _check_box_arguments(domain_min, domain_max, ground, top, gradient_method)
     interior = np.asarray(interior_points, dtype=np.float64).reshape(-1, 3)
-    rng = np.random.default_rng(seed)
-
-    # --- resample: boundary samples, interior filtering, jitter ---------------------------------------
-    inside = np.all((interior > lo) & (interior < hi), axis=1)
-    interior = interior[inside]
-    if spacing is not None:
-        spacing_fn = _checked_spacing(spacing)
-    else:
-        spacing_fn = _nn_spacing(interior, default=float((hi - lo).min()))
-    bpts, bd = _boundary_samples(lo, hi, spacing_fn, rng)
-    n_in0 = len(interior)
-    if len(interior):
-        di = spacing_fn(interior)
-        clearance = np.minimum((interior - lo).min(axis=1), (hi - interior).min(axis=1))
-        keep = clearance >= BOUNDARY_CLEARANCE * di
-        interior, di = interior[keep], di[keep]
-    if len(interior):
-        keep = separated_from(interior, BOUNDARY_SEPARATION * di, bpts, BOUNDARY_SEPARATION * bd)
-        interior, di = interior[keep], di[keep]
-        interior = interior + rng.uniform(-1, 1, interior.shape) * (JITTER_REL * di)[:, None]
-    points = np.ascontiguousarray(np.concatenate([bpts, interior]))
+    samples = _resample(lo, hi, interior, spacing, np.random.default_rng(seed))
+    points = samples.points
     t1 = time.perf_counter()
-
-    # --- Delaunay --------------------------------------------------------------------------------------
-    tri = Delaunay(points, qhull_options=QHULL_OPTIONS)
-    tets = tri.simplices.astype(np.int64)
-    nbrs = tri.neighbors.astype(np.int64)
-    # Joggling leaves zero-volume slivers spanned by 4 samples of one box face on the hull: drop them
-    # (their neighbours' faces on that plane become boundary faces).
-    on_plane = np.zeros(len(tets), dtype=bool)
-    tp = points[tets]
-    for ax in range(3):
-        for val in (lo[ax], hi[ax]):
-            on_plane |= np.all(tp[:, :, ax] == val, axis=1)
-    n_face_slivers = int(on_plane.sum())
-    if n_face_slivers:
-        keep_idx = np.flatnonzero(~on_plane)
-        remap = np.full(len(tets), -1, dtype=np.int64)
-        remap[keep_idx] = np.arange(len(keep_idx))
-        tets, nbrs = tets[keep_idx], nbrs[keep_idx]
-        nbrs = np.where(nbrs >= 0, remap[np.maximum(nbrs, 0)], -1)
+    tets, nbrs, n_face_slivers = _delaunay(points, lo, hi)
     t2 = time.perf_counter()
-
-    # --- tables ----------------------------------------------------------------------------------------
-    p = points[tets]
-    e = p[:, 1:, :] - p[:, :1, :]
-    vol6 = np.linalg.det(e)
-    neg = vol6 < 0
-    tets[neg, 0], tets[neg, 1] = tets[neg, 1], tets[neg, 0].copy()
-    nbrs[neg, 0], nbrs[neg, 1] = nbrs[neg, 1], nbrs[neg, 0].copy()
-    vol6 = np.abs(vol6)
-    pairs = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
-    edge_len = np.linalg.norm(p[:, pairs[:, 0]] - p[:, pairs[:, 1]], axis=2)  # (T, 6)
-    longest = edge_len.max(axis=1)
-    flat = vol6 <= DEGENERATE_VOL_REL * longest**3
-    if np.any(flat):
-        raise ValueError(
-            f"Delaunay returned {int(flat.sum())} flat tets (|6V| <= {DEGENERATE_VOL_REL:g} * edge^3) "
-            "despite the jitter; the input points are degenerate (duplicates or exactly cospherical)"
-        )
-    order = _morton_order(p.mean(axis=1), lo, hi)
-    inv = np.empty_like(order)
-    inv[order] = np.arange(len(order))
-    tets = np.ascontiguousarray(tets[order])
-    nbrs = nbrs[order]
-    nbrs = np.where(nbrs >= 0, inv[np.maximum(nbrs, 0)], -1)
-    vol6, edge_len, longest = vol6[order], edge_len[order], longest[order]
-    p = points[tets]
-    planes = _face_planes(points, tets)
-
-    t = len(tets)
-    interior_face = nbrs >= 0
-    nbf = np.full((t, 4), -1, dtype=np.int64)
-    ci, fi = np.nonzero(interior_face)
-    match = nbrs[nbrs[ci, fi]] == ci[:, None]
-    if not np.all(match.sum(axis=1) == 1):
-        raise ValueError("Delaunay neighbour table is not symmetric")
-    nbf[ci, fi] = match.argmax(axis=1)
-
-    # Boundary faces: all three vertices on one box plane (exact: boundary samples are never moved off
-    # their planes).
-    neighbours = nbrs.copy()
-    bc, bf = np.nonzero(~interior_face)
-    fv = np.stack([tets[bc, (bf + k) % 4] for k in (1, 2, 3)], axis=1)  # the face's 3 vertices
-    fp = points[fv]  # (nb, 3, 3)
-    on_ground = np.all(fp[:, :, 2] == lo[2], axis=1)
-    on_top = np.all(fp[:, :, 2] == hi[2], axis=1)
-    on_side = np.zeros(len(bc), dtype=bool)
-    for ax in (0, 1):
-        on_side |= np.all(fp[:, :, ax] == lo[ax], axis=1) | np.all(fp[:, :, ax] == hi[ax], axis=1)
-    if not np.all(on_ground | on_top | on_side):
-        raise ValueError(f"{int((~(on_ground | on_top | on_side)).sum())} hull faces are not on the box")
-    tag_ground = BOUNDARY_REFLECT if ground == "reflect" else BOUNDARY_OPEN
-    tag_top = BOUNDARY_REFLECT if top == "reflect" else BOUNDARY_OPEN
-    tags = np.where(on_ground, tag_ground, np.where(on_top, tag_top, BOUNDARY_OPEN))
-    neighbours[bc, bf] = tags
+    tt = _orient_and_order(points, tets, nbrs, lo, hi, n_face_slivers)
+    planes = _face_planes(points, tt.tets)
+    nbf = _neighbour_faces(tt.nbrs)
+    faces = _box_faces(points, tt.tets, tt.nbrs, lo, hi, ground, top)
     t3 = time.perf_counter()
-
-    # --- media and gradients ------------------------------------------------------------------------
-    vertex_values = np.asarray(quantity(points), dtype=np.float64).reshape(-1)
-    if vertex_values.shape != (len(points),) or not np.all(np.isfinite(vertex_values)):
-        raise ValueError("quantity must return one finite value per point")
-    centroids = p.mean(axis=1)
-    media_ref = vertex_values[tets].mean(axis=1)
-    gg = green_gauss_gradients(points, tets, vertex_values)
-    if gradient_method == "green_gauss":
-        grad, fallback = gg, np.ones(t, dtype=bool)
-    else:
-        grad, fallback = lsq_gradients(centroids, media_ref, neighbours, weighted=gradient_method == "lsq",
-                                       fallback=gg)  # fmt: skip
+    cells, vertex_values, n_fallback = _box_cells(points, tt, planes, faces, nbf, quantity, gradient_method)
     t4 = time.perf_counter()
-
-    cells = CellMesh(
-        planes=np.ascontiguousarray(planes),
-        neighbours=np.ascontiguousarray(neighbours),
-        neighbour_face=nbf,
-        media_ref=np.ascontiguousarray(media_ref),
-        ref_point=np.ascontiguousarray(centroids),
-        gradient=np.ascontiguousarray(grad),
-        size=np.ascontiguousarray(longest),
-        face_material=np.zeros((t, 4), dtype=np.int64),
-    )
-    used = np.zeros(len(points), dtype=bool)
-    used[tets.ravel()] = True
-    shortest = edge_len.min(axis=1)
-    radius_edge = _circumradius(p) / shortest
-    flat_edges = np.sort(tets[:, pairs], axis=2).reshape(-1, 2)
-    uniq = np.unique(flat_edges[:, 0] * len(points) + flat_edges[:, 1])
-    ulen = np.linalg.norm(points[uniq // len(points)] - points[uniq % len(points)], axis=1)
+    quality = _tet_quality(points, tt)
     stats = {
-        "n_points": int(used.sum()),
-        "n_boundary_points": int(len(bpts)),
-        "n_interior_points": int(len(interior)),
-        "n_interior_dropped": int(n_in0 - len(interior)),
-        "n_unused_points": int((~used).sum()),
-        "n_cells": int(t),
-        "n_degenerate": 0,
-        "n_face_slivers_removed": n_face_slivers,
-        "edge_length": _summary(ulen),
-        "size": _summary(longest),
-        "radius_edge": _summary(radius_edge, pct=(50, 99)),
-        "volume_total": float(vol6.sum() / 6.0),
+        "n_points": quality.pop("n_points"),
+        "n_boundary_points": int(samples.n_boundary),
+        "n_interior_points": int(samples.n_interior),
+        "n_interior_dropped": int(samples.n_dropped),
+        **quality,
         "n_boundary_faces": {
-            "ground": int(on_ground.sum()),
-            "top": int(on_top.sum()),
-            "sides": int((~on_ground & ~on_top).sum()),
-            "reflect": int((tags == BOUNDARY_REFLECT).sum()),
-            "open": int((tags == BOUNDARY_OPEN).sum()),
+            "ground": int(faces.on_ground.sum()),
+            "top": int(faces.on_top.sum()),
+            "sides": int((~faces.on_ground & ~faces.on_top).sum()),
+            "reflect": int((faces.tags == BOUNDARY_REFLECT).sum()),
+            "open": int((faces.tags == BOUNDARY_OPEN).sum()),
         },
         "gradient_method": gradient_method,
-        "n_lsq_fallback": int(fallback.sum()) if gradient_method != "green_gauss" else 0,
+        "n_lsq_fallback": n_fallback,
         "build_time_s": {
             "resample": t1 - t0,
             "delaunay": t2 - t1,
@@ -448,7 +543,7 @@ def build_tet_mesh(
             "total": time.perf_counter() - t0,
         },
     }
-    return TetMesh(cells=cells, points=points, tets=tets, stats=stats, vertex_values=vertex_values)
+    return TetMesh(cells=cells, points=points, tets=tt.tets, stats=stats, vertex_values=vertex_values)
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -39,6 +39,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable, Sequence
+from typing import NamedTuple
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -149,6 +150,289 @@ def _check_obstacles(obstacles: Sequence[tuple[np.ndarray, np.ndarray]], lo: np.
     return out
 
 
+class _AirBox(NamedTuple):
+    """The checked inputs: lo, hi (3,) metres; ground height gz (m); obstacles [(vertices (V, 3) m, faces
+    (F, 3) int64)]; mats (n_obstacles,) int64 material per obstacle; planes_def: the 6 box planes as
+    (axis, value) (ground z = gz, x lo, x hi, y lo, y hi, top)."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+    gz: float
+    obs: list[tuple[np.ndarray, np.ndarray]]
+    mats: np.ndarray
+    planes_def: list[tuple[int, float]]
+
+
+class _ObstacleFaces(NamedTuple):
+    """The boundary faces (nb of them) after the snap: cell bc (nb,), face slot bf (nb,), vertex ids fv
+    (nb, 3) and the masks is_ground, is_side, is_top, is_obst (nb,) (obstacle = on no box plane)."""
+
+    bc: np.ndarray
+    bf: np.ndarray
+    fv: np.ndarray
+    is_ground: np.ndarray
+    is_side: np.ndarray
+    is_top: np.ndarray
+    is_obst: np.ndarray
+
+
+def _check_air_box(domain_min, domain_max, ground_z: float, obstacles: Sequence[tuple[np.ndarray, np.ndarray]],
+                   materials: Sequence[int] | None, top: str, gradient_method: str, edge_length: float,
+                   epsilon: float) -> _AirBox:  # fmt: skip
+    """Validate the arguments of ``build_obstacle_tet_mesh`` (ValueError naming the first bad one)."""
+    lo = np.asarray(domain_min, dtype=np.float64).reshape(3)
+    hi = np.asarray(domain_max, dtype=np.float64).reshape(3)
+    gz = float(ground_z)
+    if not np.all(hi > lo):
+        raise ValueError(f"domain_max {hi} must exceed domain_min {lo} on every axis")
+    if not (lo[2] <= gz < hi[2]):
+        raise ValueError(f"ground_z = {gz:g} must lie in [domain_min z, domain_max z)")
+    if top not in ("open", "reflect"):
+        raise ValueError(f"top must be 'open' or 'reflect', got {top!r}")
+    if gradient_method not in GRADIENT_METHODS:
+        raise ValueError(f"gradient_method must be one of {GRADIENT_METHODS}, got {gradient_method!r}")
+    if not (np.isfinite(edge_length) and edge_length > 0):
+        raise ValueError("edge_length must be positive")
+    if not (0.0 < epsilon < 1.0):
+        raise ValueError("epsilon must be in (0, 1)")
+    obs = _check_obstacles(obstacles, lo, hi, gz)
+    if not obs:
+        raise ValueError("no obstacles: use the terrain-following or box builders")
+    mats = np.zeros(len(obs), dtype=np.int64) if materials is None else np.asarray(materials, dtype=np.int64)
+    if mats.shape != (len(obs),):
+        raise ValueError(f"materials must have one entry per obstacle ({len(obs)})")
+    planes_def = [(2, gz), (0, lo[0]), (0, hi[0]), (1, lo[1]), (1, hi[1]), (2, hi[2])]  # ground, 4 sides, top
+    return _AirBox(lo, hi, gz, obs, mats, planes_def)
+
+
+def _air_surface(box: _AirBox) -> tuple[np.ndarray, np.ndarray]:
+    """fTetWild's input: the air box [lo_x, hi_x] x [lo_y, hi_y] x [gz, hi_z] (outward triangles) and every
+    obstacle reversed (a hole in the air volume). Returns vertices (V, 3) metres and triangles (F, 3)."""
+    bv, bf = _box_surface(np.array([box.lo[0], box.lo[1], box.gz]), box.hi)
+    verts, faces = [bv], [bf]
+    offset = len(bv)
+    for v, f in box.obs:
+        verts.append(v)
+        faces.append(f[:, ::-1] + offset)  # reversed: obstacles are holes in the air volume
+        offset += len(v)
+    return np.concatenate(verts), np.concatenate(faces)
+
+
+def _check_clearance(box: _AirBox, tol: float) -> None:
+    """ValueError when an obstacle comes within the snap tolerance ``tol`` (m) of the sides or the top."""
+    lo, hi = box.lo, box.hi
+    for i, (v, _) in enumerate(box.obs):
+        gap = min(float((v[:, :2] - lo[:2]).min()), float((hi[:2] - v[:, :2]).min()), float(hi[2] - v[:, 2].max()))
+        if gap <= tol:
+            raise ValueError(f"obstacle {i}: {gap:.3g} m from the domain sides / top, not more than the snap "
+                             f"tolerance {tol:.3g} m; enlarge the domain or lower epsilon")  # fmt: skip
+
+
+def _compact(points: np.ndarray, tets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Drop the points (P, 3) no tet (T, 4) uses and renumber the tets; MeshBuildError without tets."""
+    if len(tets) == 0:
+        raise MeshBuildError("fTetWild returned no tetrahedra")
+    used = np.unique(tets)
+    remap = np.full(len(points), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return np.ascontiguousarray(points[used]), remap[tets]
+
+
+def _snap_to_box_planes(points: np.ndarray, tets: np.ndarray, planes_def: list[tuple[int, float]],
+                        tol: float) -> float:  # fmt: skip
+    """Move the vertices of every boundary face lying within ``tol`` (m) of a box plane exactly onto it
+    (``points`` (P, 3) is modified in place); returns the largest move, metres."""
+    faces_all = face_vertices(tets)
+    nbrs, _ = match_faces(faces_all, len(points), len(points))
+    bc, bf_ = np.nonzero(nbrs < 0)
+    fv = faces_all[bc, bf_]  # (nb, 3)
+    dist = np.stack([np.abs(points[fv, ax] - val).max(axis=1) for ax, val in planes_def], axis=1)  # (nb, 6)
+    which = np.where(dist.min(axis=1) <= tol, dist.argmin(axis=1), -1)
+    snap_max = 0.0
+    for k, (ax, val) in enumerate(planes_def):
+        vid = np.unique(fv[which == k])
+        if len(vid):
+            snap_max = max(snap_max, float(np.abs(points[vid, ax] - val).max()))
+            points[vid, ax] = val
+    return snap_max
+
+
+def _drop_slivers_and_orient(points: np.ndarray, tets: np.ndarray, planes_def: list[tuple[int, float]],
+                             snap_max: float) -> tuple[np.ndarray, int]:  # fmt: skip
+    """Remove the tets whose 4 vertices all lie on one box plane after the snap (no volume: as tets.py
+    drops qhull's hull slivers; their other faces become boundary faces on that plane), flip the negative
+    ones (swap vertices 0 and 1); MeshBuildError if any is flat. Returns (tets (T, 4), slivers removed)."""
+    on_plane = np.zeros(len(tets), dtype=bool)
+    for ax, val in planes_def:
+        on_plane |= np.all(points[tets, ax] == val, axis=1)
+    n_slivers = int(on_plane.sum())
+    tets = tets[~on_plane]
+    p = points[tets]
+    vol6 = np.linalg.det(p[:, 1:, :] - p[:, :1, :])
+    neg = vol6 < 0
+    tets[neg, 0], tets[neg, 1] = tets[neg, 1], tets[neg, 0].copy()
+    pairs = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
+    longest = np.linalg.norm(p[:, pairs[:, 0]] - p[:, pairs[:, 1]], axis=2).max(axis=1)
+    flat = np.abs(vol6) <= DEGENERATE_VOL_REL * longest**3
+    if np.any(flat):
+        raise MeshBuildError(f"{int(flat.sum())} flat tets after fTetWild and the box-plane snap "
+                             f"(snap moved vertices up to {snap_max:.3g} m); lower epsilon")  # fmt: skip
+    return tets, n_slivers
+
+
+def _boundary_faces(points: np.ndarray, faces_all: np.ndarray, nbrs: np.ndarray,
+                    planes_def: list[tuple[int, float]]) -> _ObstacleFaces:  # fmt: skip
+    """Classify the boundary faces (nbrs < 0) by the box plane holding all 3 vertices (exact after the
+    snap); faces on none are obstacle faces."""
+    bc, bf_ = np.nonzero(nbrs < 0)
+    fv = faces_all[bc, bf_]
+    on = np.stack([np.all(points[fv, ax] == val, axis=1) for ax, val in planes_def], axis=1)  # exact after snap
+    is_ground, is_side, is_top = on[:, 0], np.any(on[:, 1:5], axis=1), on[:, 5]
+    is_obst = ~(is_ground | is_side | is_top)
+    return _ObstacleFaces(bc, bf_, fv, is_ground, is_side, is_top, is_obst)
+
+
+def _surface_deviation(points: np.ndarray, bfaces: _ObstacleFaces, tri_all: np.ndarray,
+                       tol: float) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Distances (m) of the obstacle faces from the input obstacle triangles tri_all (F, 3, 3): at their
+    vertices (dev_v), and at the vertices, edge midpoints and centroids (dev: fTetWild's edge flips cut
+    chords). MeshBuildError when one exceeds ``tol`` (m). Returns (dev, dev_v)."""
+    fv, is_obst = bfaces.fv, bfaces.is_obst
+    ov = np.unique(fv[is_obst])
+    dev_v = surface_distance(points[ov], tri_all)[0] if len(ov) else np.zeros(0)
+    ot = points[fv[is_obst]]  # (no, 3, 3)
+    probes = np.concatenate([0.5 * (ot + np.roll(ot, 1, axis=1)), ot.mean(axis=1, keepdims=True)], axis=1)
+    dev = np.concatenate([dev_v, surface_distance(probes.reshape(-1, 3), tri_all)[0] if len(ot) else []])
+    if len(dev) and dev.max() > tol:
+        raise MeshBuildError(f"a boundary face is neither on a box plane nor within {tol:.3g} m of an obstacle "
+                             f"(vertex {dev.max():.3g} m away); lower epsilon")  # fmt: skip
+    return dev, dev_v
+
+
+def _tags_and_materials(
+    points: np.ndarray,
+    nbrs: np.ndarray,
+    bfaces: _ObstacleFaces,
+    box: _AirBox,
+    tri_all: np.ndarray,
+    top: str,
+    ground_material: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """neighbours (T, 4) with boundary tags (ground and obstacles BOUNDARY_REFLECT, top as asked, sides
+    BOUNDARY_OPEN) and face_material (T, 4): ground_material on the ground, on an obstacle face the
+    material of the obstacle owning the input triangle nearest its centroid."""
+    bc, bf_, is_ground, is_obst = bfaces.bc, bfaces.bf, bfaces.is_ground, bfaces.is_obst
+    neighbours = nbrs.copy()
+    top_tag = np.where(bfaces.is_top & (top == "reflect"), BOUNDARY_REFLECT, BOUNDARY_OPEN)
+    neighbours[bc, bf_] = np.where(is_ground | is_obst, BOUNDARY_REFLECT, top_tag)
+    face_material = np.zeros(nbrs.shape, dtype=np.int64)
+    face_material[bc[is_ground], bf_[is_ground]] = int(ground_material)
+    oi = np.flatnonzero(is_obst)
+    if len(oi):
+        tri_owner = np.repeat(np.arange(len(box.obs)), [len(f) for _, f in box.obs])
+        near_tri = surface_distance(points[bfaces.fv[oi]].mean(axis=1), tri_all)[1]
+        face_material[bc[oi], bf_[oi]] = box.mats[tri_owner[near_tri]]
+    return neighbours, face_material
+
+
+class _Snap(NamedTuple):
+    """fTetWild's envelope eps_abs (m), the snap tolerance (m), the largest snap move (m) and the number of
+    box-plane slivers removed."""
+
+    envelope: float
+    tol: float
+    snap_max: float
+    n_slivers: int
+
+
+class _Tables(NamedTuple):
+    """Traversal tables of the air mesh: tets (T, 4) in Morton order, neighbour_face nbf (T, 4), outward
+    planes (T, 4, 4), face_planes' quality dict qual, the classified boundary faces, the obstacle-surface
+    deviations dev / dev_v (m), neighbours (T, 4) with boundary tags and face_material (T, 4)."""
+
+    tets: np.ndarray
+    nbf: np.ndarray
+    planes: np.ndarray
+    qual: dict
+    bfaces: _ObstacleFaces
+    dev: np.ndarray
+    dev_v: np.ndarray
+    neighbours: np.ndarray
+    face_material: np.ndarray
+
+
+def _air_tets(box: _AirBox, edge_length: float, epsilon: float, snap_tol: float | None, num_threads: int,
+              optimize: bool) -> tuple[np.ndarray, np.ndarray, float, float]:  # fmt: skip
+    """fTetWild on the air surface: points (P, 3) m, tets (T, 4), the envelope eps_abs = epsilon x input
+    bounding-box diagonal (m) and the snap tolerance (m: snap_tol, default SNAP_ENVELOPES envelopes)."""
+    in_v, in_f = _air_surface(box)
+    envelope = float(epsilon * np.linalg.norm(in_v.max(axis=0) - in_v.min(axis=0)))
+    tol = SNAP_ENVELOPES * envelope if snap_tol is None else float(snap_tol)
+    _check_clearance(box, tol)
+    points, tets = _run_tetwild(in_v, in_f, edge_length, epsilon, num_threads, optimize)
+    return points, tets, envelope, tol
+
+
+def _air_tables(points: np.ndarray, tets: np.ndarray, box: _AirBox, tol: float, top: str,
+                ground_material: int) -> _Tables:  # fmt: skip
+    """Morton order (tets.py), neighbours and shared planes (prisms.py helpers), boundary classification,
+    the obstacle-surface deviation check and the boundary tags; MeshBuildError on flat tets."""
+    tets = np.ascontiguousarray(tets[_morton_order(points[tets].mean(axis=1), box.lo, box.hi)])
+    faces_all = face_vertices(tets)
+    nbrs, nbf = match_faces(faces_all, len(points), len(points))
+    planes, qual = face_planes(points, tets, faces_all, nbrs, nbf)
+    vol, longest = qual["volume"], qual["longest_edge"]
+    if np.any(6.0 * vol <= DEGENERATE_VOL_REL * longest**3):
+        raise MeshBuildError(f"{int((6.0 * vol <= DEGENERATE_VOL_REL * longest**3).sum())} flat or inverted tets")
+    bfaces = _boundary_faces(points, faces_all, nbrs, box.planes_def)
+    tri_all = np.concatenate([v[f] for v, f in box.obs])
+    dev, dev_v = _surface_deviation(points, bfaces, tri_all, tol)
+    neighbours, face_material = _tags_and_materials(points, nbrs, bfaces, box, tri_all, top, ground_material)
+    return _Tables(tets, nbf, planes, qual, bfaces, dev, dev_v, neighbours, face_material)
+
+
+def _air_stats(points: np.ndarray, box: _AirBox, snap: _Snap, tab: _Tables, edge_length: float, epsilon: float,
+               gradient_method: str, n_fallback: int, times: list[float]) -> dict:  # fmt: skip
+    """The ``stats`` of ``build_obstacle_tet_mesh`` (times: perf_counter at start, after fTetWild, after
+    the tables, after the gradients)."""
+    t0, t1, t2, t3 = times
+    dev, dev_v, bfaces, neighbours = tab.dev, tab.dev_v, tab.bfaces, tab.neighbours
+    return {
+        "n_points": int(len(points)),
+        "n_cells": int(len(tab.tets)),
+        "n_obstacles": len(box.obs),
+        "n_degenerate": 0,
+        "edge_length_m": float(edge_length),
+        "epsilon": float(epsilon),
+        "envelope_m": snap.envelope,
+        "snap_tol_m": snap.tol,
+        "snap_max_m": snap.snap_max,
+        "n_plane_slivers_removed": snap.n_slivers,
+        "surface_deviation_m": {
+            "max": float(dev.max()) if len(dev) else 0.0,
+            "median": float(np.median(dev)) if len(dev) else 0.0,
+            "max_at_vertices": float(dev_v.max()) if len(dev_v) else 0.0,
+        },  # fmt: skip
+        **tab.qual["summary"],
+        "n_boundary_faces": {
+            "ground": int(bfaces.is_ground.sum()),
+            "obstacle": int(bfaces.is_obst.sum()),
+            "sides": int(bfaces.is_side.sum()),
+            "top": int(bfaces.is_top.sum()),
+            "reflect": int((neighbours == BOUNDARY_REFLECT).sum()),
+            "open": int((neighbours == BOUNDARY_OPEN).sum()),
+        },
+        "gradient_method": gradient_method,
+        "n_lsq_fallback": n_fallback,
+        "build_time_s": {
+            "tetwild": t1 - t0,
+            "tables": t2 - t1,
+            "gradients": t3 - t2,
+            "total": time.perf_counter() - t0,
+        },
+    }
+
+
 def build_obstacle_tet_mesh(
     domain_min,
     domain_max,
@@ -200,164 +484,22 @@ def build_obstacle_tet_mesh(
     ValueError on bad arguments or obstacles; MeshBuildError when fTetWild's output fails the checks.
     """
     t0 = time.perf_counter()
-    lo = np.asarray(domain_min, dtype=np.float64).reshape(3)
-    hi = np.asarray(domain_max, dtype=np.float64).reshape(3)
-    gz = float(ground_z)
-    if not np.all(hi > lo):
-        raise ValueError(f"domain_max {hi} must exceed domain_min {lo} on every axis")
-    if not (lo[2] <= gz < hi[2]):
-        raise ValueError(f"ground_z = {gz:g} must lie in [domain_min z, domain_max z)")
-    if top not in ("open", "reflect"):
-        raise ValueError(f"top must be 'open' or 'reflect', got {top!r}")
-    if gradient_method not in GRADIENT_METHODS:
-        raise ValueError(f"gradient_method must be one of {GRADIENT_METHODS}, got {gradient_method!r}")
-    if not (np.isfinite(edge_length) and edge_length > 0):
-        raise ValueError("edge_length must be positive")
-    if not (0.0 < epsilon < 1.0):
-        raise ValueError("epsilon must be in (0, 1)")
-    obs = _check_obstacles(obstacles, lo, hi, gz)
-    if not obs:
-        raise ValueError("no obstacles: use the terrain-following or box builders")
-    mats = np.zeros(len(obs), dtype=np.int64) if materials is None else np.asarray(materials, dtype=np.int64)
-    if mats.shape != (len(obs),):
-        raise ValueError(f"materials must have one entry per obstacle ({len(obs)})")
-
-    # --- input surface and fTetWild ------------------------------------------------------------------
-    air_lo = np.array([lo[0], lo[1], gz])
-    bv, bf = _box_surface(air_lo, hi)
-    verts, faces = [bv], [bf]
-    offset = len(bv)
-    for v, f in obs:
-        verts.append(v)
-        faces.append(f[:, ::-1] + offset)  # reversed: obstacles are holes in the air volume
-        offset += len(v)
-    in_v, in_f = np.concatenate(verts), np.concatenate(faces)
-    envelope = float(epsilon * np.linalg.norm(in_v.max(axis=0) - in_v.min(axis=0)))
-    tol = SNAP_ENVELOPES * envelope if snap_tol is None else float(snap_tol)
-    for i, (v, _) in enumerate(obs):
-        gap = min(float((v[:, :2] - lo[:2]).min()), float((hi[:2] - v[:, :2]).min()), float(hi[2] - v[:, 2].max()))
-        if gap <= tol:
-            raise ValueError(f"obstacle {i}: {gap:.3g} m from the domain sides / top, not more than the snap "
-                             f"tolerance {tol:.3g} m; enlarge the domain or lower epsilon")  # fmt: skip
-    points, tets = _run_tetwild(in_v, in_f, edge_length, epsilon, num_threads, optimize)
+    box = _check_air_box(domain_min, domain_max, ground_z, obstacles, materials, top, gradient_method, edge_length,
+                         epsilon)  # fmt: skip
+    points, tets, envelope, tol = _air_tets(box, edge_length, epsilon, snap_tol, num_threads, optimize)
     t1 = time.perf_counter()
-    if len(tets) == 0:
-        raise MeshBuildError("fTetWild returned no tetrahedra")
-    used = np.unique(tets)
-    remap = np.full(len(points), -1, dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    points, tets = np.ascontiguousarray(points[used]), remap[tets]
-
-    # --- boundary faces, box planes and the snap -------------------------------------------------------
-    faces_all = face_vertices(tets)
-    nbrs, _ = match_faces(faces_all, len(points), len(points))
-    bc, bf_ = np.nonzero(nbrs < 0)
-    fv = faces_all[bc, bf_]  # (nb, 3)
-    planes_def = [(2, gz), (0, lo[0]), (0, hi[0]), (1, lo[1]), (1, hi[1]), (2, hi[2])]  # ground, 4 sides, top
-    dist = np.stack([np.abs(points[fv, ax] - val).max(axis=1) for ax, val in planes_def], axis=1)  # (nb, 6)
-    which = np.where(dist.min(axis=1) <= tol, dist.argmin(axis=1), -1)
-    snap_max = 0.0
-    for k, (ax, val) in enumerate(planes_def):
-        vid = np.unique(fv[which == k])
-        if len(vid):
-            snap_max = max(snap_max, float(np.abs(points[vid, ax] - val).max()))
-            points[vid, ax] = val
-    # A boundary sliver whose 4 vertices all land on one box plane has no volume: drop it (as tets.py drops
-    # qhull's hull slivers); its other faces become boundary faces on that plane.
-    on_plane = np.zeros(len(tets), dtype=bool)
-    for ax, val in planes_def:
-        on_plane |= np.all(points[tets, ax] == val, axis=1)
-    n_slivers = int(on_plane.sum())
-    tets = tets[~on_plane]
-    p = points[tets]
-    vol6 = np.linalg.det(p[:, 1:, :] - p[:, :1, :])
-    neg = vol6 < 0
-    tets[neg, 0], tets[neg, 1] = tets[neg, 1], tets[neg, 0].copy()
-    pairs = np.array([(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)])
-    longest = np.linalg.norm(p[:, pairs[:, 0]] - p[:, pairs[:, 1]], axis=2).max(axis=1)
-    flat = np.abs(vol6) <= DEGENERATE_VOL_REL * longest**3
-    if np.any(flat):
-        raise MeshBuildError(f"{int(flat.sum())} flat tets after fTetWild and the box-plane snap "
-                             f"(snap moved vertices up to {snap_max:.3g} m); lower epsilon")  # fmt: skip
-
-    # --- Morton order, tables ------------------------------------------------------------------------------
-    order = _morton_order(points[tets].mean(axis=1), lo, hi)
-    tets = np.ascontiguousarray(tets[order])
-    faces_all = face_vertices(tets)
-    nbrs, nbf = match_faces(faces_all, len(points), len(points))
-    planes, qual = face_planes(points, tets, faces_all, nbrs, nbf)
-    vol, longest = qual["volume"], qual["longest_edge"]
-    if np.any(6.0 * vol <= DEGENERATE_VOL_REL * longest**3):
-        raise MeshBuildError(f"{int((6.0 * vol <= DEGENERATE_VOL_REL * longest**3).sum())} flat or inverted tets")
-    bc, bf_ = np.nonzero(nbrs < 0)
-    fv = faces_all[bc, bf_]
-    on = np.stack([np.all(points[fv, ax] == val, axis=1) for ax, val in planes_def], axis=1)  # exact after snap
-    is_ground, is_side, is_top = on[:, 0], on[:, 1:5].any(axis=1), on[:, 5]
-    is_obst = ~(is_ground | is_side | is_top)
-    ov = np.unique(fv[is_obst])
-    tri_all = np.concatenate([v[f] for v, f in obs])
-    tri_owner = np.repeat(np.arange(len(obs)), [len(f) for _, f in obs])
-    dev_v = surface_distance(points[ov], tri_all)[0] if len(ov) else np.zeros(0)
-    # fTetWild re-triangulates the surface (edge flips: the vertices stay on it, the faces cut chords), so
-    # the faces are also probed at their edge midpoints and centroids.
-    ot = points[fv[is_obst]]  # (no, 3, 3)
-    probes = np.concatenate([0.5 * (ot + np.roll(ot, 1, axis=1)), ot.mean(axis=1, keepdims=True)], axis=1)
-    dev = np.concatenate([dev_v, surface_distance(probes.reshape(-1, 3), tri_all)[0] if len(ot) else []])
-    if len(dev) and dev.max() > tol:
-        raise MeshBuildError(f"a boundary face is neither on a box plane nor within {tol:.3g} m of an obstacle "
-                             f"(vertex {dev.max():.3g} m away); lower epsilon")  # fmt: skip
-    neighbours = nbrs.copy()
-    neighbours[bc, bf_] = np.where(is_ground | is_obst, BOUNDARY_REFLECT,
-                                   np.where(is_top & (top == "reflect"), BOUNDARY_REFLECT, BOUNDARY_OPEN))  # fmt: skip
-    face_material = np.zeros(nbrs.shape, dtype=np.int64)
-    face_material[bc[is_ground], bf_[is_ground]] = int(ground_material)
-    oi = np.flatnonzero(is_obst)
-    if len(oi):
-        near_tri = surface_distance(points[fv[oi]].mean(axis=1), tri_all)[1]
-        face_material[bc[oi], bf_[oi]] = mats[tri_owner[near_tri]]
+    points, tets = _compact(points, tets)
+    snap_max = _snap_to_box_planes(points, tets, box.planes_def, tol)
+    tets, n_slivers = _drop_slivers_and_orient(points, tets, box.planes_def, snap_max)
+    tab = _air_tables(points, tets, box, tol, top, ground_material)
     t2 = time.perf_counter()
-
-    # --- media and gradients -------------------------------------------------------------------------------
-    cells, vertex_values, n_fallback = tet_cell_mesh(
-        points, tets, planes, neighbours, nbf, longest, face_material, quantity_at, gradient_method
-    )
+    cells, vertex_values, n_fallback = tet_cell_mesh(points, tab.tets, tab.planes, tab.neighbours, tab.nbf,
+                                                     tab.qual["longest_edge"], tab.face_material, quantity_at,
+                                                     gradient_method)  # fmt: skip
     t3 = time.perf_counter()
-
-    stats = {
-        "n_points": int(len(points)),
-        "n_cells": int(len(tets)),
-        "n_obstacles": len(obs),
-        "n_degenerate": 0,
-        "edge_length_m": float(edge_length),
-        "epsilon": float(epsilon),
-        "envelope_m": envelope,
-        "snap_tol_m": tol,
-        "snap_max_m": snap_max,
-        "n_plane_slivers_removed": n_slivers,
-        "surface_deviation_m": {
-            "max": float(dev.max()) if len(dev) else 0.0,
-            "median": float(np.median(dev)) if len(dev) else 0.0,
-            "max_at_vertices": float(dev_v.max()) if len(dev_v) else 0.0,
-        },  # fmt: skip
-        **qual["summary"],
-        "n_boundary_faces": {
-            "ground": int(is_ground.sum()),
-            "obstacle": int(is_obst.sum()),
-            "sides": int(is_side.sum()),
-            "top": int(is_top.sum()),
-            "reflect": int((neighbours == BOUNDARY_REFLECT).sum()),
-            "open": int((neighbours == BOUNDARY_OPEN).sum()),
-        },
-        "gradient_method": gradient_method,
-        "n_lsq_fallback": n_fallback,
-        "build_time_s": {
-            "tetwild": t1 - t0,
-            "tables": t2 - t1,
-            "gradients": t3 - t2,
-            "total": time.perf_counter() - t0,
-        },
-    }
-    return TetMesh(cells=cells, points=points, tets=tets, stats=stats, vertex_values=vertex_values)
+    snap = _Snap(envelope, tol, snap_max, n_slivers)
+    stats = _air_stats(points, box, snap, tab, edge_length, epsilon, gradient_method, n_fallback, [t0, t1, t2, t3])
+    return TetMesh(cells=cells, points=points, tets=tab.tets, stats=stats, vertex_values=vertex_values)
 
 
 def locate_in_obstacle_mesh(tet_mesh: TetMesh, xyz: np.ndarray) -> np.ndarray:
