@@ -19,7 +19,6 @@ apart) from the first submit until the last job finished, and prints their p50 /
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import socket
 import subprocess
@@ -29,30 +28,20 @@ import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import httpx
 import numpy as np
 
-_EXAMPLE = Path(__file__).resolve().parents[1] / "scenes" / "examples" / "a-ld-fan.json"
 KEYS = ("bench-key-alpha-0123456789", "bench-key-bravo-0123456789")
 
 
 def small_job(name: str, rays: int = 91) -> dict[str, Any]:
-    """The README's A-LD fan with ``rays`` elevations, report only (no large files)."""
-    if _EXAMPLE.is_file():
-        job: dict[str, Any] = json.loads(_EXAMPLE.read_text())
-    else:  # installed without the examples folder: the same job inline
-        job = {
-            "scene": {"domain": {"min": [-50, -50, 0], "max": [4000, 50, 2600]}, "ground": {"kind": "flat"}},
-            "profile": {"kind": "log", "c0": 340.0, "b": 1.0, "z_g": 1.0},
-            "sources": [{"position": [0, 0, 1.5]}],
-            "rays": {"elevation_deg": {"min": -45, "max": 45, "count": 91}, "max_time_s": 10.0, "max_reflections": 50},
-            "solver": {"curve": "parabolic", "epsilon": 0.001},
-        }
-    job["name"] = name
-    job["rays"]["elevation_deg"]["count"] = rays
+    """The README's A-LD fan with ``rays`` elevations (the health bench's job), report only (no large
+    files)."""
+    from bentray.service.bench_health import _job
+
+    job = _job(rays, name)
     job["outputs"] = ["report"]
     return job
 
