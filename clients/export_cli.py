@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -37,12 +38,21 @@ def _levels(text: str) -> list[float]:
         raise argparse.ArgumentTypeError(f"levels must be comma-separated numbers, got {text!r}") from None
 
 
-def _formats(text: str) -> list[str]:
-    out = [v.strip() for v in text.split(",") if v.strip()]
-    bad = [v for v in out if v not in FORMATS]
-    if bad or not out:
-        raise argparse.ArgumentTypeError(f"unknown format(s) {bad or text!r}; choose from {', '.join(FORMATS)}")
-    return out
+def format_list(allowed: tuple[str, ...] | list[str]) -> Callable[[str], list[str]]:
+    """An argparse ``type`` for a comma-separated list of names out of ``allowed`` (an ArgumentTypeError
+    naming the unknown ones otherwise)."""
+
+    def parse(text: str) -> list[str]:
+        out = [v.strip() for v in text.split(",") if v.strip()]
+        bad = [v for v in out if v not in allowed]
+        if bad or not out:
+            raise argparse.ArgumentTypeError(f"unknown format(s) {bad or text!r}; choose from {', '.join(allowed)}")
+        return out
+
+    return parse
+
+
+_formats = format_list(FORMATS)
 
 
 def add_export(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:

@@ -29,6 +29,8 @@ from typing import Any
 
 import numpy as np
 
+from bentray.clients.export_cli import format_list
+
 __all__ = ["add_lden", "cmd_lden"]
 
 INDICATORS = ("lday", "levening", "lnight")
@@ -48,12 +50,7 @@ def _numbers(count: int):  # type: ignore[no-untyped-def]
     return parse
 
 
-def _formats(text: str) -> list[str]:
-    out = [v.strip() for v in text.split(",") if v.strip()]
-    bad = [v for v in out if v not in LDEN_FORMATS]
-    if bad or not out:
-        raise argparse.ArgumentTypeError(f"unknown format(s) {bad or text!r}; choose from {', '.join(LDEN_FORMATS)}")
-    return out
+_formats = format_list(LDEN_FORMATS)
 
 
 def add_lden(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
