@@ -11,7 +11,9 @@ intensity level of the energy sum of the direct and image paths integrated over 
 
 R1, R2 the distances from (x', y', z_s) and its image (x', y', -z_s) to the receiver (x, 0, z_r), by
 scipy.integrate.dblquad. Receivers 4 m high, 10 .. 80 m from the square's near edge, opposite its middle.
-Measured (2026-12-01): see docs/gis.md (Area sources); the test asserts 0.5 dB (issue 14).
+Measured (2026-12-01): error -0.035 dB at 10 m, |error| <= 0.014 dB from 20 to 80 m (the pieces' point-source
+sum alone is -0.039 dB at 10 m: the discretisation, not the tracing); the test asserts 0.5 dB (issue 14). Run
+time of the field test ~7 s warm (2 shared cores), after the usual first-run kernel compilation.
 """
 
 from __future__ import annotations
