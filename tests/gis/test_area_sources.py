@@ -237,3 +237,37 @@ def test_discretise_area_argument_errors():
                         height_above_ground_m=0.5)  # fmt: skip
     with pytest.raises(ValueError, match="non-empty Polygon"):
         discretise_area(shapely.LineString([(0, 0), (1, 1)]), {"A": 60.0}, [], height_above_ground_m=0.5)
+
+
+def test_crs_area_pieces_are_localised_and_put_on_the_terrain(tmp_path):
+    """The consultant's path without tracing: a car park in EPSG:25832 coordinates -> job sources with
+    ``height_above_ground_m`` -> the local frame (scenes/gis_frame.py) -> on a sloping DEM."""
+    pytest.importorskip("pyproj")
+    from bentray.engine.surfaces import HeightGrid, SceneSurfaces
+    from bentray.scenes.gis_frame import localise_job
+    from bentray.scenes.scene_models import resolve_source_heights
+    from bentray.scenes.schema import Job
+
+    x0, y0 = 691_000.0, 5_334_000.0
+    park = [[x0 + 50, y0 + 20], [x0 + 110, y0 + 20], [x0 + 110, y0 + 60], [x0 + 50, y0 + 60], [x0 + 50, y0 + 20]]
+    path = _write(tmp_path, [_feature("Polygon", [park], power_db_per_m2={"500": 60.0}, height_above_ground_m=0.5)])
+    gx, gy = np.meshgrid(x0 + 10 + 10.0 * np.arange(29), y0 + 10 + 10.0 * np.arange(19), indexing="ij")
+    pieces = read_area_sources_geojson(path, np.column_stack([gx.ravel(), gy.ravel()]), min_piece_m=5.0)
+    job = Job.model_validate({
+        "name": "crs-area",
+        "scene": {"crs": "EPSG:25832", "domain": {"min": [x0 + 5, y0 + 5, 495.0], "max": [x0 + 305, y0 + 205, 560.0]}},
+        "profile": {"kind": "homogeneous"},
+        "sources": [p.as_job_source() for p in pieces],
+        "rays": {"elevation_deg": {"min": -10, "max": 10, "count": 3}, "max_time_s": 1.0, "max_reflections": 2},
+    })  # fmt: skip
+    local, frame = localise_job(job)
+    assert frame.origin == (x0, y0)
+    x = np.linspace(0.0, 320.0, 33)
+    gxl, gyl = np.meshgrid(x, x)
+    dem = HeightGrid(x, x, 500.0 + 0.02 * gxl)  # a plane rising eastwards: bilinear is exact
+    out = resolve_source_heights(local, SceneSurfaces(terrain=dem))
+    for p, s in zip(pieces, out.sources, strict=True):
+        assert s.position[0] == pytest.approx(p.position[0] - x0, abs=1e-9)
+        assert s.position[1] == pytest.approx(p.position[1] - y0, abs=1e-9)
+        assert s.position[2] == pytest.approx(500.0 + 0.02 * s.position[0] + 0.5, abs=1e-9)
+    assert total_power_db(pieces, "500") == pytest.approx(60.0 + 10 * math.log10(60 * 40), abs=1e-9)
