@@ -130,7 +130,7 @@ def paraxial_cost(quick: bool) -> Table:
     rounds = 2 if quick else 5
     for name, n in (("desert", 1000 if quick else 4000),):
         sc = build_scene_mesh(name, n)
-        kw = {"max_time_s": 10.0, "max_reflections": 3}
+        kw: dict[str, Any] = {"max_time_s": 10.0, "max_reflections": 3}
         args = (sc.mesh, "parabolic", 340.0, sc.origins, sc.directions, sc.start_cells)
         best = {False: np.inf, True: np.inf}
         res = trace(*args, **kw)
