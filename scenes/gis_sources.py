@@ -176,7 +176,10 @@ def read_line_sources_geojson(
                     name=str(props.get("name", f"features.{i}")) + (f" part {part}" if kind != "LineString" else ""),
                 )  # fmt: skip
             except ValueError as exc:
-                raise ValueError(f"{label}: {exc}") from None
+                text = str(exc)
+                # discretise_line names the piece itself ("features.3: ..." for an unnamed feature)
+                prefix = f"features.{i}"
+                raise ValueError(f"{path}: {text}" if text.startswith(prefix) else f"{label}: {text}") from None
     return out
 
 
