@@ -39,9 +39,16 @@ def scene_problems(job: Any, base_dir: str | Path | None) -> list[str]:
                 from bentray.scenes.library.registry import get_builtin
 
                 surfaces = get_builtin(scene.builtin, scene.resolution).surfaces
-        elif scene.terrain is not None or scene.buildings is not None:
-            surfaces = surfaces_from_specs(
-                scene.terrain, scene.buildings, scene.materials, base_dir, scene.box, prefix="scene"
+        elif scene.terrain is not None or scene.buildings is not None or scene.ground_zones is not None:
+            surfaces = surfaces_from_specs(  # as the job's scene stage reads them (engine/stages.py)
+                scene.terrain,
+                scene.buildings,
+                scene.materials,
+                base_dir,
+                scene.box,
+                prefix="scene",
+                ground_zones=scene.ground_zones,
+                offset=scene.local_origin if scene.crs is not None else None,
             )
     except (BentrayError, ValueError, OSError) as exc:
         problems += _lines(exc)

@@ -99,3 +99,27 @@ def test_zone_errors(tmp_path):
     domain = SimpleNamespace(min=(0.0, 0.0, 0.0), max=(10.0, 10.0, 10.0))
     with pytest.raises(SceneSpecError, match=r"scene.ground_zones: zones.0: material 'moss' is not defined"):
         surfaces_from_specs(None, None, [], tmp_path, domain, ground_zones=spec)
+
+
+def test_zone_errors_are_found_at_submit(tmp_path):
+    """The submit-time scene checks (service and ``bentray run --check``) read the ground zones as the job
+    will: an undefined zone material is a ``scene.ground_zones`` problem before any worker runs."""
+    from bentray.scenes.job_checks import scene_problems
+    from bentray.scenes.schema import Job
+
+    job = Job.model_validate(
+        {
+            "name": "zones",
+            "scene": {
+                "domain": {"min": [0, 0, 0], "max": [10, 10, 10]},
+                "ground": {"kind": "flat"},
+                "ground_zones": {"zones": [{"polygon": _rect(0, 0, 5, 5), "material": "moss"}]},
+            },
+            "profile": {"kind": "homogeneous", "c0": 340.0},
+            "sources": [{"position": [5.0, 5.0, 2.0]}],
+            "rays": {"elevation_deg": {"min": -5, "max": 5, "count": 3}, "max_time_s": 0.1, "max_reflections": 2},
+            "outputs": ["report"],
+        }
+    )
+    problems = scene_problems(job, tmp_path)
+    assert any("scene.ground_zones" in p and "moss" in p for p in problems), problems
