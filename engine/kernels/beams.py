@@ -252,10 +252,33 @@ def _turn(re, im, kmah):
     return -im, re
 
 
+class Chord(NamedTuple):
+    """One chord of a ray, deposited by :func:`deposit_chord` / :func:`deposit_points`.
+
+    sa, sb : (SAMPLE_SIZE,) sample records at its two ends; amp_a, amp_b : (2, F) complex amplitude factor
+    per band at the two samples (reflection coefficients, absorption; re in row 0, im in row 1); group :
+    its arrival group; kmah : caustics passed (the amplitude turns by (-i)^kmah, time factor exp(-i w t));
+    launch_cos : cos(launch elevation) (I / I_1m = launch_cos / J).
+    """
+
+    sa: np.ndarray
+    sb: np.ndarray
+    amp_a: np.ndarray
+    amp_b: np.ndarray
+    group: int
+    kmah: int
+    launch_cos: float
+
+
 @nb.njit(inline="always", **NJIT_FLAGS)
-def _point_beam(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos, px, py, pz, v, scratch):
-    """The chord's beam at point (px, py, pz), accumulated into point v of ``acc``; False if it does not
-    own the point or its hat weight is zero. scratch : (15,) work array."""
+def _point_beam(grid, acc, slot, ch, px, py, pz, v, scratch):
+    """The beam of chord ``ch`` (Chord) at point (px, py, pz) m, accumulated into point v of ``acc`` (slot
+    ``slot``); False if it does not own the point or its hat weight is zero. scratch : (15,) work array."""
+    sa = ch.sa
+    sb = ch.sb
+    amp_a = ch.amp_a
+    amp_b = ch.amp_b
+    group = ch.group
     da = (px - sa[S_X]) * sa[S_T] + (py - sa[S_X + 1]) * sa[S_T + 1] + (pz - sa[S_X + 2]) * sa[S_T + 2]
     if da < 0.0:
         return False
@@ -299,7 +322,7 @@ def _point_beam(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos, 
     if h2 <= 0.0:
         return False
     w = h1 * h2
-    rel_i = launch_cos / (a11 * a22)
+    rel_i = ch.launch_cos / (a11 * a22)
     acc.weight[slot, group, v] += w
     acc.hits[slot, v] += 1.0
     n_f = grid.omega.shape[0]
@@ -322,7 +345,7 @@ def _point_beam(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos, 
         tau = v_ * sa[S_TIME] + u * sb[S_TIME] + qa * (v_ * sa[S_SLOW] + u * sb[S_SLOW]) + 0.5 * pd0 / grid.c_ref
         amp = w * math.sqrt(rel_i)
         for f in range(n_f):
-            re, im = _turn(v_ * amp_a[0, f] + u * amp_b[0, f], v_ * amp_a[1, f] + u * amp_b[1, f], kmah)
+            re, im = _turn(v_ * amp_a[0, f] + u * amp_b[0, f], v_ * amp_a[1, f] + u * amp_b[1, f], ch.kmah)
             ph = grid.omega[f] * tau
             cph = math.cos(ph)
             sph = math.sin(ph)
@@ -332,15 +355,13 @@ def _point_beam(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos, 
 
 
 @nb.njit(**NJIT_FLAGS)
-def deposit_chord(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos):
-    """Add the beam of the chord from sample ``sa`` to sample ``sb`` to every grid point it owns.
-
-    sa, sb : (SAMPLE_SIZE,) sample records; amp_a, amp_b : (2, F) complex amplitude factor per band
-    at the two samples (reflection coefficients, absorption; re in row 0, im in row 1);
-    group : arrival group of the chord; kmah : caustics passed (the amplitude turns by (-i)^kmah, time
-    factor exp(-i w t)); launch_cos : cos(launch elevation) (I / I_1m = launch_cos / J).
-    Returns the number of grid points that received a contribution.
+def deposit_chord(grid, acc, slot, ch):
+    """Add the beam of chord ``ch`` (Chord: from sample ch.sa to sample ch.sb) to every point of ``grid``
+    (BeamGrid) it owns, into slot ``slot`` of ``acc`` (BeamAcc). Returns the number of grid points that
+    received a contribution.
     """
+    sa = ch.sa
+    sb = ch.sb
     reach = max(_half_width(sa, grid.dgamma[0], grid.dgamma[1], grid.w_min),
                 _half_width(sb, grid.dgamma[0], grid.dgamma[1], grid.w_min))  # fmt: skip
     nx = grid.shape[0]
@@ -368,18 +389,19 @@ def deposit_chord(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos
             k0, k1 = _index_range(z_lo, z_hi, zo, grid.spacing[2], nz)
             for k in range(k0, k1 + 1):
                 v = (i * ny + j) * nz + k
-                if _point_beam(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos, px, py,
-                               zo + k * grid.spacing[2], v, scratch):  # fmt: skip
+                if _point_beam(grid, acc, slot, ch, px, py, zo + k * grid.spacing[2], v, scratch):
                     count += 1
     return count
 
 
 @nb.njit(**NJIT_FLAGS)
-def deposit_points(grid, acc, pts, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos):
+def deposit_points(grid, acc, pts, slot, ch):
     """The same for a list of receiver points (BeamPoints: binned on a coarse regular grid)."""
     n_pts = pts.xyz.shape[0]
     if n_pts == 0:
         return 0
+    sa = ch.sa
+    sb = ch.sb
     reach = max(_half_width(sa, grid.dgamma[0], grid.dgamma[1], grid.w_min),
                 _half_width(sb, grid.dgamma[0], grid.dgamma[1], grid.w_min))  # fmt: skip
     lo = np.empty(3, np.int64)
@@ -402,8 +424,7 @@ def deposit_points(grid, acc, pts, slot, sa, sb, amp_a, amp_b, group, kmah, laun
                 b = (i * ny + j) * nz + k
                 for e in range(pts.bin_start[b], pts.bin_start[b + 1]):
                     v = pts.bin_items[e]
-                    if _point_beam(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos, pts.xyz[v, 0],
-                                   pts.xyz[v, 1], pts.xyz[v, 2], v, scratch):  # fmt: skip
+                    if _point_beam(grid, acc, slot, ch, pts.xyz[v, 0], pts.xyz[v, 1], pts.xyz[v, 2], v, scratch):
                         count += 1
     return count
 
@@ -426,7 +447,9 @@ class BeamRay(NamedTuple):
     """Per-ray scratch of the beam field: the last sample and the one being built, with amplitudes.
 
     last, cur : (SAMPLE_SIZE,); amp_last, amp_cur : (2, F); ist : (3,) int64 =
-    [has a last sample, caustics passed (kmah), sign of the last non-zero det[X1, X2, T] (+1/-1/0)].
+    [has a last sample, caustics passed (kmah), sign of the last non-zero det[X1, X2, T] (+1/-1/0)];
+    refl_cos, refl_mat : (R,) the ray's first R reflections' incidence cosine and face material (read;
+    written by the traversal); launch_cos : cos(launch elevation).
     """
 
     last: np.ndarray
@@ -434,12 +457,23 @@ class BeamRay(NamedTuple):
     amp_last: np.ndarray
     amp_cur: np.ndarray
     ist: np.ndarray
+    refl_cos: np.ndarray
+    refl_mat: np.ndarray
+    launch_cos: float
 
 
 @nb.njit(**NJIT_FLAGS)
-def new_ray(n_f):
+def new_ray(n_f, refl_cos, refl_mat, launch_cos):
+    """Fresh BeamRay for n_f bands (refl_cos, refl_mat, launch_cos: see BeamRay)."""
     return BeamRay(
-        np.zeros(SAMPLE_SIZE), np.zeros(SAMPLE_SIZE), np.zeros((2, n_f)), np.zeros((2, n_f)), np.zeros(3, np.int64)
+        np.zeros(SAMPLE_SIZE),
+        np.zeros(SAMPLE_SIZE),
+        np.zeros((2, n_f)),
+        np.zeros((2, n_f)),
+        np.zeros(3, np.int64),
+        refl_cos,
+        refl_mat,
+        launch_cos,
     )
 
 
@@ -476,12 +510,12 @@ class Beam(NamedTuple):
 
 
 @nb.njit(**NJIT_FLAGS)
-def ray_sample(beam, slot, ray, x, tangent, time, arc, slow, par, n_refl, refl_cos, refl_mat, launch_cos, start_new):
-    """Record a sample of the ray and deposit the chord from the previous one (unless start_new).
+def ray_sample(beam, slot, ray, x, tangent, time, arc, slow, par, n_refl, start_new):
+    """Record a sample of the ray (BeamRay) and deposit the chord from the previous one (unless start_new).
 
     x, tangent : (3,) position (m) and unit tangent; time (s), arc (m), slow = 1/c (s/m) there;
     par : (12,) paraxial derivatives (engine/kernels/paraxial.py); n_refl : reflections so far (their
-    incidence cosines and materials in refl_cos, refl_mat). start_new: the sample starts a new chord
+    incidence cosines and materials in ray.refl_cos, ray.refl_mat). start_new: the sample starts a new chord
     (launch, or the outgoing side of a reflection). Returns the number of points reached.
     """
     cur = ray.cur
@@ -503,19 +537,19 @@ def ray_sample(beam, slot, ray, x, tangent, time, arc, slow, par, n_refl, refl_c
             ray.ist[1] += 1
         ray.ist[2] = sign
     cur[S_JSIGN] = sign
-    _amplitude(beam.tabs, arc, n_refl, refl_cos, refl_mat, ray.amp_cur)
+    _amplitude(beam.tabs, arc, n_refl, ray.refl_cos, ray.refl_mat, ray.amp_cur)
     reached = 0
     if ray.ist[0] != 0 and not start_new:
         kmah = ray.ist[1]
         grid = beam.grid
         if grid.mode != BEAM_OFF:
             group = chord_group(grid.n_refl, n_refl, kmah)
-            reached = deposit_chord(grid, beam.acc, slot, ray.last, cur, ray.amp_last, ray.amp_cur, group, kmah,
-                                    launch_cos)  # fmt: skip
+            ch = Chord(ray.last, cur, ray.amp_last, ray.amp_cur, group, kmah, ray.launch_cos)
+            reached = deposit_chord(grid, beam.acc, slot, ch)
         if beam.pts.xyz.shape[0] > 0:
             group = chord_group(beam.p_grid.n_refl, n_refl, kmah)
-            reached += deposit_points(beam.p_grid, beam.p_acc, beam.pts, slot, ray.last, cur, ray.amp_last,
-                                      ray.amp_cur, group, kmah, launch_cos)  # fmt: skip
+            ch = Chord(ray.last, cur, ray.amp_last, ray.amp_cur, group, kmah, ray.launch_cos)
+            reached += deposit_points(beam.p_grid, beam.p_acc, beam.pts, slot, ch)
     for i in range(SAMPLE_SIZE):
         ray.last[i] = cur[i]
     for f in range(ray.amp_cur.shape[1]):

@@ -25,12 +25,18 @@ Kernel contract (structs, not long argument lists): ``trace_rays(mesh, prm, fld,
 with mesh a mesh.cells.CellMesh, prm a :class:`RayParams`, fld a field.FieldAcc, paths a
 :class:`PathBuffers` and rays a :class:`Rays` (per-ray inputs and the out_state / out_counts outputs,
 columns constants.STATE_* / COUNT_*); the ray's own field state is one field.RayField. Tolerances live in
-engine/constants.py. The per-ray loop of trace_one is kept as one function with its state in local
-scalars: a split into step functions over a per-ray state struct (arrays) was bit-identical but measured
-2.3-2.8x slower (crossings per second, desert scene), so only the rare events are helpers. The places
-where per-ray extra state (paraxial derivatives, beam deposit) is updated are marked ``HOOK (a)`` (after
-each segment inside a cell, also the last one at max_time), ``HOOK (b)`` (face crossing into a neighbour),
-``HOOK (c)`` (specular reflection) and ``HOOK (d)`` (the end).
+engine/constants.py. One ray's life (trace_one) reads as its steps: ``_launch`` (wind azimuth, paraxial
+launch), ``_walk_cells`` (per cell: the medium, with wind ``_wind_medium``; a slide ``_slide_gradient``; the
+curve and its first exit; a stall ``_resolve_stall``; the last segment ``_finish_at_max_time``; the segment
+inside the cell with ``_segment_hooks``; the crossing into the neighbour; ``_reflect``) and ``_write_out``.
+The steps are ``inline="always"`` (numba inlines them before typing, so the loop compiles as one function:
+the same machine code as one long loop, no call and no reference counting per step; an earlier split into
+called functions over a per-ray state struct measured 2.3-2.8x slower). Per-ray state: the work arrays of
+:class:`RayWork`, the fixed per-ray context :class:`RayCtx` (its counters are the ray's out_counts row,
+updated in place), and the hot scalars (cell, t, s, entry, stall counters) as locals of ``_walk_cells``.
+The places where per-ray extra state (paraxial derivatives, beam deposit) is updated are marked ``HOOK
+(a)`` (after each segment inside a cell, also the last one at max_time), ``HOOK (b)`` (face crossing into
+a neighbour), ``HOOK (c)`` (specular reflection) and ``HOOK (d)`` (the end).
 """
 
 from __future__ import annotations
@@ -75,6 +81,7 @@ from bentray.engine.constants import (
     TINY_STEP_REL,
 )
 from bentray.engine.kernels import beams, curves, field, paraxial
+from bentray.engine.mesh.cells import CellMesh
 from bentray.engine.wind import WIND_NONE, effective_quantity
 
 
@@ -131,6 +138,75 @@ class Rays(NamedTuple):
     out_par: np.ndarray
 
 
+class RayWork(NamedTuple):
+    """One ray's work arrays (float64; (3,) unless noted), allocated once per ray (_new_work).
+
+    x, d : position (m) and unit tangent; xn, dn : the end of the current segment; xs, ts : a point and
+    tangent on the curve (samples); cs : (curves.CS_SIZE,) the current cell's curve; g : the gradient the
+    curve is set up with; g_slide : its scratch while sliding; x_mid : the middle of the straight chord
+    (wind); e_wind : the horizontal launch azimuth (zeros without wind); w_grad, g_eff, g_tmp : wind
+    scratch; par, par_tmp : (paraxial.PAR_SIZE,) paraxial derivatives and a copy advanced inside a
+    segment; p_end : the slowness vector at a segment's end; f : (2,) [F_T_LAST: time of the last path
+    sample (s), F_P_NORM: |p| = n at x (1.0 until the paraxial launch)].
+    """
+
+    x: np.ndarray
+    d: np.ndarray
+    xn: np.ndarray
+    dn: np.ndarray
+    xs: np.ndarray
+    ts: np.ndarray
+    cs: np.ndarray
+    g: np.ndarray
+    g_slide: np.ndarray
+    x_mid: np.ndarray
+    e_wind: np.ndarray
+    w_grad: np.ndarray
+    g_eff: np.ndarray
+    g_tmp: np.ndarray
+    par: np.ndarray
+    par_tmp: np.ndarray
+    p_end: np.ndarray
+    f: np.ndarray
+
+
+F_T_LAST = 0
+F_P_NORM = 1
+
+
+class RayCtx(NamedTuple):
+    """What one ray fixes at its launch (_launch).
+
+    i : its row in Rays; acc : its accumulator slot; base : first row of its path slice; wind : the WIND_*
+    code it sees (WIND_NONE without wind or for a vertical launch); f_on : field accumulation on; par_on :
+    paraxial state carried; deposit_on : beam samples taken; rf : field.RayField; bray : beams.BeamRay;
+    cnt : (COUNT_SIZE,) int64, its out_counts row (reflections, crossings, nudges, steps, samples counted
+    in place; the status written at the end).
+    """
+
+    i: int
+    acc: int
+    base: int
+    wind: int
+    f_on: bool
+    par_on: bool
+    deposit_on: bool
+    rf: field.RayField
+    bray: beams.BeamRay
+    cnt: np.ndarray
+
+
+class Job(NamedTuple):
+    """What every step of every ray of one trace call reads: the mesh (CellMesh), prm (RayParams), the field
+    accumulators (field.FieldAcc), the path buffers (PathBuffers) and the beam field (beams.Beam)."""
+
+    mesh: CellMesh
+    prm: RayParams
+    fld: field.FieldAcc
+    paths: PathBuffers
+    beam: beams.Beam
+
+
 @nb.njit(**NJIT_FLAGS)
 def _media_at(media_ref, ref_point, gradient, cell, x):
     return (
@@ -141,13 +217,14 @@ def _media_at(media_ref, ref_point, gradient, cell, x):
     )
 
 
-@nb.njit(**NJIT_FLAGS)
-def _slowness_at(curve, c_ref, media_ref, ref_point, gradient, cell, x, wind_code, wind_params, e, w_grad, g_eff):
-    """1/c (s/m) of the medium the ray sees at x: the cell's model, plus the wind along e when on."""
-    m = _media_at(media_ref, ref_point, gradient, cell, x)
-    if wind_code != WIND_NONE:
-        m = effective_quantity(curve, c_ref, m, gradient[cell], wind_code, wind_params, x, e, w_grad, g_eff)
-    return curves.slowness(curve, m, c_ref)
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _slowness_at(mesh, prm, w, cell, wind):
+    """1/c (s/m) of the medium the ray sees at w.x: the cell's model, plus the wind along w.e_wind when on."""
+    m = _media_at(mesh.media_ref, mesh.ref_point, mesh.gradient, cell, w.x)
+    if wind != WIND_NONE:
+        m = effective_quantity(prm.curve, prm.c_ref, m, mesh.gradient[cell], wind, prm.wind_params, w.x, w.e_wind,
+                               w.w_grad, w.g_tmp)  # fmt: skip
+    return curves.slowness(prm.curve, m, prm.c_ref)
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -254,51 +331,32 @@ def _onto_face(plane, x, d, move_x):
 
 
 @nb.njit(**NJIT_FLAGS)
-def _emit(path_pts, path_t, path_s, base, cap, count, x, t, s):
-    if count < cap:
+def _emit(paths, cnt, base, x, t, s):
+    """Path sample (x (3,) m, t s, s m) into row base + cnt[COUNT_SAMPLES] of paths, while the slice has room."""
+    count = cnt[COUNT_SAMPLES]
+    if count < paths.cap:
         k = base + count
-        path_pts[k, 0] = x[0]
-        path_pts[k, 1] = x[1]
-        path_pts[k, 2] = x[2]
-        path_t[k] = t
-        path_s[k] = s
-        return count + 1
-    return count
+        paths.pts[k, 0] = x[0]
+        paths.pts[k, 1] = x[1]
+        paths.pts[k, 2] = x[2]
+        paths.t[k] = t
+        paths.s[k] = s
+        cnt[COUNT_SAMPLES] = count + 1
 
 
-@nb.njit(**NJIT_FLAGS)
-def _emit_segment(
-    curve,
-    cs,
-    x0,
-    d0,
-    param_end,
-    t0,
-    s0,
-    t_end,
-    c_ref,
-    t_last,
-    dt_sample,
-    path_pts,
-    path_t,
-    path_s,
-    base,
-    cap,
-    count,
-    xs,
-    ts,
-):
-    """Interior samples of a segment spanning more than dt_sample (evaluated on the curve)."""
-    n_int = int((t_end - t0) / dt_sample)
-    if n_int > 2 * cap:
-        n_int = 2 * cap
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _emit_segment(prm, paths, ray, w, param_end, t0, s0, t_end):
+    """Interior samples of a segment from time t0 (s), arc s0 (m) to t_end spanning more than dt_sample
+    (evaluated on the curve w.cs from w.x, w.d at parameters j param_end / (n + 1)); w.f[F_T_LAST] follows."""
+    n_int = int((t_end - t0) / prm.dt_sample)
+    if n_int > 2 * paths.cap:
+        n_int = 2 * paths.cap
     for j in range(1, n_int + 1):
-        prm = param_end * j / (n_int + 1)
-        ds = curves.evaluate(curve, cs, x0, d0, prm, xs, ts)
-        tt = t0 + curves.time_at(curve, cs, prm, c_ref)
-        count = _emit(path_pts, path_t, path_s, base, cap, count, xs, tt, s0 + ds)
-        t_last = tt
-    return count, t_last
+        pj = param_end * j / (n_int + 1)
+        ds = curves.evaluate(prm.curve, w.cs, w.x, w.d, pj, w.xs, w.ts)
+        tt = t0 + curves.time_at(prm.curve, w.cs, pj, prm.c_ref)
+        _emit(paths, ray.cnt, ray.base, w.xs, tt, s0 + ds)
+        w.f[F_T_LAST] = tt
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -311,22 +369,376 @@ def _p_at(cs, sigma, p_out):
     return math.sqrt(nn)
 
 
-@nb.njit(**NJIT_FLAGS)
-def _beam_segment(beam, slot, bray, curve, cs, x, d, param, t, s, ds, c_ref, par, par_tmp, p_tmp, n_refl, refl_cos,
-                  refl_mat, launch_cos, xs, ts):  # fmt: skip
-    """Beam samples inside a segment longer than the chord length (on the curve, uniform in sigma)."""
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _beam_segment(prm, beam, ray, w, param, t, s, ds):
+    """Beam samples inside a segment (parameter 0 .. param from time t, arc s; ds m long) longer than the
+    chord length: on the curve, uniform in sigma (w.xs, w.ts, w.par_tmp, w.p_end are overwritten)."""
     chord = beam.tabs.chord_m
     if ds <= chord:
         return
     n_int = int(ds / chord)
     for j in range(1, n_int + 1):
-        prm = param * j / (n_int + 1)
-        dsj = curves.evaluate(curve, cs, x, d, prm, xs, ts)
-        tj = t + curves.time_at(curve, cs, prm, c_ref)
-        paraxial.advanced_copy(par, prm, par_tmp)
-        nj = _p_at(cs, prm, p_tmp)
-        beams.ray_sample(beam, slot, bray, xs, ts, tj, s + dsj, nj / c_ref, par_tmp, n_refl, refl_cos, refl_mat,
-                         launch_cos, False)  # fmt: skip
+        pj = param * j / (n_int + 1)
+        dsj = curves.evaluate(prm.curve, w.cs, w.x, w.d, pj, w.xs, w.ts)
+        tj = t + curves.time_at(prm.curve, w.cs, pj, prm.c_ref)
+        paraxial.advanced_copy(w.par, pj, w.par_tmp)
+        nj = _p_at(w.cs, pj, w.p_end)
+        beams.ray_sample(beam, ray.acc, ray.bray, w.xs, w.ts, tj, s + dsj, nj / prm.c_ref, w.par_tmp,
+                         ray.cnt[COUNT_REFLECTIONS], False)  # fmt: skip
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _new_work(x0, d0):
+    """Fresh RayWork starting at x0 (3,) m along d0 (3,) (normalised here)."""
+    x = x0.copy()
+    d = d0.copy()
+    norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    for k in range(3):
+        d[k] /= norm
+    e = np.empty(3)  # (a name per scratch array would not read better: RayWork names them)
+    return RayWork(x, d, np.empty(3), np.empty(3), np.empty(3), np.empty(3), np.zeros(curves.CS_SIZE), np.empty(3),
+                   np.empty(3), np.empty(3), np.zeros(3), np.empty(3), np.empty(3), e, np.zeros(paraxial.PAR_SIZE),
+                   np.zeros(paraxial.PAR_SIZE), np.zeros(3), np.array([0.0, 1.0]))  # fmt: skip
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _ray_wind(prm, w):
+    """The wind code this ray sees, with its horizontal launch azimuth e into w.e_wind (the effective-sound-
+    speed approximation keeps e for the whole path); a vertical launch has no azimuth and sees no wind
+    (u . e = 0 for every horizontal u): WIND_NONE."""
+    if prm.wind_code == WIND_NONE:
+        return WIND_NONE
+    d = w.d
+    horizontal = math.sqrt(d[0] * d[0] + d[1] * d[1])
+    if not (horizontal > 0.0):
+        return WIND_NONE
+    w.e_wind[0] = d[0] / horizontal
+    w.e_wind[1] = d[1] / horizontal
+    return prm.wind_code
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _launch(mesh, prm, fld, beam, rays, i, acc, cap, w):
+    """RayCtx of ray i (accumulator slot acc, path slice from row i * cap), with w (RayWork from _new_work) set
+    up: wind azimuth, the paraxial launch and the beam's first sample (docs/physics.md §10-11) when asked for
+    and physical; the ray's counters (rays.out_counts[i]) zeroed."""
+    cell = rays.start_cells[i]
+    wind = _ray_wind(prm, w)
+    cnt = rays.out_counts[i]
+    for k in range(cnt.shape[0]):
+        cnt[k] = 0
+    rf = field.new_ray_field(rays.f_weights[i], rays.refl_cos[i], rays.refl_mat[i], i, acc)
+    launch_cos = math.sqrt(w.d[0] * w.d[0] + w.d[1] * w.d[1])
+    bray = beams.new_ray(beam.grid.omega.shape[0], rays.refl_cos[i], rays.refl_mat[i], launch_cos)
+    deposit_on = beam.grid.mode != beams.BEAM_OFF or beam.pts.xyz.shape[0] > 0
+    par_on = (deposit_on or rays.out_par.shape[0] > 0) and cell >= 0
+    if par_on:
+        m_start = _media_at(mesh.media_ref, mesh.ref_point, mesh.gradient, cell, w.x)
+        if wind != WIND_NONE:
+            m_start = effective_quantity(prm.curve, prm.c_ref, m_start, mesh.gradient[cell], wind, prm.wind_params,
+                                         w.x, w.e_wind, w.w_grad, w.g_eff)  # fmt: skip
+        if m_start > 0.0:
+            w.f[F_P_NORM] = math.sqrt(m_start)
+            paraxial.launch(w.par, w.d, w.f[F_P_NORM])
+            if deposit_on:
+                beams.ray_sample(beam, acc, bray, w.x, w.d, 0.0, 0.0, w.f[F_P_NORM] / prm.c_ref, w.par, 0, True)
+        else:
+            par_on = False
+    return RayCtx(i, acc, i * cap, wind, fld.mode != field.FIELD_OFF, par_on, deposit_on and par_on,
+                  rf, bray, cnt)  # fmt: skip
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _wind_medium(mesh, prm, w, cell, wind, m0):
+    """The effective medium c + u . e in cell ``cell`` at w.x: returns its traced quantity (exact, at x) and
+    sets w.g to its gradient at the middle of the straight chord through the cell (w.g holds the cell's own
+    gradient on entry). The entry point's own gradient would make the per-cell model first-order accurate;
+    measured on a log-law wind, errors fell only 3x per 3x thinner layers, and 10x with the chord middle.
+    The curve, its exit, time_at (which then integrates 1/c_eff: the travel time in the moving medium), the
+    nudge slowness and the field deposit all use them."""
+    m0 = effective_quantity(prm.curve, prm.c_ref, m0, w.g, wind, prm.wind_params, w.x, w.e_wind, w.w_grad, w.g_eff)
+    if _chord_middle(mesh.planes[cell], mesh.neighbours[cell], w.x, w.d, w.x_mid):
+        m_mid = _media_at(mesh.media_ref, mesh.ref_point, mesh.gradient, cell, w.x_mid)
+        effective_quantity(prm.curve, prm.c_ref, m_mid, w.g, wind, prm.wind_params, w.x_mid, w.e_wind, w.w_grad,
+                           w.g_eff)  # fmt: skip
+    for k in range(3):
+        w.g[k] = w.g_eff[k]
+    return m0
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _slide_gradient(mesh, w, cell, face, wind_on):
+    """Sliding along ``face``: w.g becomes the mean gradient of the two sides (without wind; with wind the
+    cell's own) without its normal part, so the curve stays in the face plane."""
+    planes = mesh.planes
+    g = w.g
+    g_slide = w.g_slide
+    nb_cell = mesh.neighbours[cell, face]
+    for k in range(3):
+        g_slide[k] = g[k]
+        if nb_cell >= 0 and not wind_on:
+            g_slide[k] = 0.5 * (g[k] + mesh.gradient[nb_cell, k])
+    gm = g_slide[0] * planes[cell, face, 0] + g_slide[1] * planes[cell, face, 1] + g_slide[2] * planes[cell, face, 2]
+    for k in range(3):
+        g[k] = g_slide[k] - gm * planes[cell, face, k]
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _resolve_stall(mesh, prm, w, cnt, cell, m0, entry, t, s, nudge_run):
+    """No consistent exit (rounding at an edge or vertex, or too many zero-length steps): slide along the
+    face x lies on and d moves along, else nudge x by NUDGE_REL x cell size along d and re-locate it.
+
+    Counts a nudge; more than MAX_NUDGES_IN_A_ROW in a row: lost. Returns (cell, status, slide_face, entry,
+    t, s, nudge_run) with t (s), s (m) advanced by the nudge.
+    """
+    cnt[COUNT_NUDGES] += 1
+    nudge_run += 1
+    if nudge_run > MAX_NUDGES_IN_A_ROW:
+        return cell, STATUS_LOST, -1, entry, t, s, nudge_run
+    tf = _tangent_face(mesh.planes[cell], mesh.neighbours[cell], w.x, w.d, mesh.size[cell])
+    if tf >= 0:
+        _onto_face(mesh.planes[cell, tf], w.x, w.d, True)
+        return cell, STATUS_RUNNING, tf, entry, t, s, nudge_run
+    eta = NUDGE_REL * mesh.size[cell]
+    t += eta * curves.slowness(prm.curve, m0, prm.c_ref)
+    s += eta
+    cell, status = _nudge(mesh.planes, mesh.neighbours, cell, w.x, w.d, eta)
+    return cell, status, -1, -1, t, s, nudge_run
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _paraxial_segment(prm, beam, ray, w, param, t, s, ds):
+    """HOOK (a), paraxial: the beam samples inside the segment, then the derivatives and |p| at its end."""
+    if ray.deposit_on:
+        _beam_segment(prm, beam, ray, w, param, t, s, ds)
+    paraxial.advance(w.par, param)
+    w.f[F_P_NORM] = _p_at(w.cs, param, w.p_end)
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _segment_hooks(job, ray, w, cell, face, param, t, s, dt, ds, m0):
+    """HOOK (a): a segment inside the cell (parameter 0 .. param, from time t, arc s; dt s, ds m long,
+    ending at w.xn, w.dn on ``face``, -1 for a within-cell step): paraxial derivatives and beam samples,
+    field deposit and path samples, before x moves on."""
+    prm = job.prm
+    n_refl = ray.cnt[COUNT_REFLECTIONS]
+    if ray.par_on:  # derivatives at the segment's end, on its face
+        _paraxial_segment(prm, job.beam, ray, w, param, t, s, ds)
+        if face >= 0:
+            paraxial.onto_face(w.par, job.mesh.planes[cell, face], w.p_end, w.g, math.inf)
+            chord_done = s + ds - ray.bray.last[beams.S_ARC] >= job.beam.tabs.chord_m
+            if ray.deposit_on and (job.mesh.neighbours[cell, face] < 0 or chord_done):
+                beams.ray_sample(job.beam, ray.acc, ray.bray, w.xn, w.dn, t + dt, s + ds, w.f[F_P_NORM] / prm.c_ref,
+                                 w.par, n_refl, False)  # fmt: skip
+    if ray.f_on:
+        seg = field.Segment(param, t, s, dt, ds)
+        field.deposit_segment(job.fld, ray.rf, n_refl, prm.curve, prm.c_ref, w.cs, w.x, w.d, w.xn, m0, w.g, seg)
+    if prm.record and dt > prm.dt_sample:
+        _emit_segment(prm, job.paths, ray, w, param, t, s, t + dt)
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _finish_at_max_time(job, ray, w, param, t, s, m0):
+    """The last segment, to exactly max_time (the time equation solved inside it), with its HOOK (a):
+    x, d move to its end; returns the arc length there (m)."""
+    prm = job.prm
+    max_time = prm.max_time
+    n_refl = ray.cnt[COUNT_REFLECTIONS]
+    param_end = curves.param_at_time(prm.curve, w.cs, max_time - t, param, prm.c_ref)
+    ds = curves.evaluate(prm.curve, w.cs, w.x, w.d, param_end, w.xn, w.dn)
+    if ray.par_on:
+        _paraxial_segment(prm, job.beam, ray, w, param_end, t, s, ds)
+        if ray.deposit_on:
+            beams.ray_sample(job.beam, ray.acc, ray.bray, w.xn, w.dn, max_time, s + ds, w.f[F_P_NORM] / prm.c_ref,
+                             w.par, n_refl, False)  # fmt: skip
+    if ray.f_on:
+        seg = field.Segment(param_end, t, s, max_time - t, ds)
+        field.deposit_segment(job.fld, ray.rf, n_refl, prm.curve, prm.c_ref, w.cs, w.x, w.d, w.xn, m0, w.g, seg)
+    if prm.record and max_time - t > prm.dt_sample:
+        _emit_segment(prm, job.paths, ray, w, param_end, t, s, max_time)
+    for k in range(3):
+        w.x[k] = w.xn[k]
+        w.d[k] = w.dn[k]
+    return s + ds
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _reflect(job, ray, w, cell, face, param, t, s, entry):
+    """At a reflecting ``face`` of ``cell`` (x on it): specular reflection T' = T - 2 (T.m) m with its
+    HOOK (c), or a slide when the ray sits on the face tangent to it and curving into it, or the end at
+    max_reflections. Returns (status, entry, slide_face)."""
+    mesh = job.mesh
+    prm = job.prm
+    planes = mesh.planes
+    d = w.d
+    cnt = ray.cnt
+    dot = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
+    if param == 0.0 and abs(dot) <= GRAZE_COS:
+        # on the boundary, moving along it and curving into it: the limit of vanishing bounces is creeping
+        # along the surface; slide (no reflection: the direction would not change)
+        return STATUS_RUNNING, -1, face
+    n_refl = cnt[COUNT_REFLECTIONS]
+    if n_refl >= prm.max_reflections:
+        return STATUS_REFLECTION_LIMIT, entry, -1
+    if ray.f_on:  # time gathered before the reflection belongs to the incoming ray
+        field.flush_pending(job.fld, ray.rf, n_refl, w.x, d, t, s, _slowness_at(mesh, prm, w, cell, ray.wind))
+        if mesh.face_material[cell, face] > 0:
+            ray.rf.fst[2] = -1.0  # a soft reflection: re-evaluate the ground factors
+    refl_cos = ray.rf.refl_cos
+    if n_refl < refl_cos.shape[0]:
+        refl_cos[n_refl] = abs(dot)
+        ray.rf.refl_mat[n_refl] = mesh.face_material[cell, face]
+    for k in range(3):
+        d[k] -= 2.0 * dot * planes[cell, face, k]
+    norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+    for k in range(3):
+        d[k] /= norm
+    cnt[COUNT_REFLECTIONS] = n_refl + 1  # HOOK (c): specular reflection done (d reflected)
+    if ray.par_on:
+        paraxial.reflect(w.par, planes[cell, face])
+        if ray.deposit_on:
+            beams.ray_sample(job.beam, ray.acc, ray.bray, w.x, d, t, s, w.f[F_P_NORM] / prm.c_ref, w.par, n_refl + 1,
+                             True)  # fmt: skip
+    if prm.record and t > w.f[F_T_LAST]:
+        _emit(job.paths, cnt, ray.base, w.x, t, s)
+        w.f[F_T_LAST] = t
+    return STATUS_RUNNING, face, -1
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _walk_cells(job, ray, w, cell):
+    """The per-cell loop of Algorithm 1 from ``cell`` (x, d in w; counters in ray.cnt) until the ray stops:
+    returns (cell, status, t, s). Per step: the cell's medium, the curve through it, its first exit; a stall
+    is resolved by a slide or a nudge; the last segment ends at max_time; otherwise the segment is walked
+    to its end (HOOK (a)) and the ray crosses into the neighbour (HOOK (b)), reflects (HOOK (c)) or exits."""
+    mesh = job.mesh
+    prm = job.prm
+    planes, neighbours, nb_face, gradient = mesh.planes, mesh.neighbours, mesh.neighbour_face, mesh.gradient
+    media_ref, ref_point, size = mesh.media_ref, mesh.ref_point, mesh.size
+    x, d, xn, dn, cs, g = w.x, w.d, w.xn, w.dn, w.cs, w.g
+    curve, c_ref, max_time, dt_sample, record = prm.curve, prm.c_ref, prm.max_time, prm.dt_sample, prm.record
+    cnt = ray.cnt
+    wind_on = ray.wind != WIND_NONE
+    par_on = ray.par_on
+    hooks_on = par_on or ray.f_on or record
+    t = 0.0
+    s = 0.0
+    entry = slide_face = prev_cell = -1
+    zero_run = nudge_run = pp_run = 0
+    status = STATUS_RUNNING if cell >= 0 else STATUS_LOST
+    while status == STATUS_RUNNING:
+        if cnt[COUNT_STEPS] >= prm.max_steps:
+            status = STATUS_STEP_LIMIT
+            break
+        cnt[COUNT_STEPS] += 1
+        m0 = _media_at(media_ref, ref_point, gradient, cell, x)
+        for k in range(3):  # copied, not viewed: a view per step costs two atomic reference-count updates
+            g[k] = gradient[cell, k]
+        if wind_on:
+            m0 = _wind_medium(mesh, prm, w, cell, ray.wind, m0)
+        exclude = entry
+        if slide_face >= 0:
+            _slide_gradient(mesh, w, cell, slide_face, wind_on)
+            exclude = slide_face
+            slide_face = -1
+        if not curves.setup(curve, m0, g, d, cs):
+            status = STATUS_LOST
+            break
+        if par_on:  # the segment restarts from this cell's model at x: p' = n'(x) d (docs/physics.md §10)
+            n_new = math.sqrt(m0)
+            paraxial.restart(w.par, d, w.f[F_P_NORM], n_new, g)
+            w.f[F_P_NORM] = n_new
+        cell_size = size[cell]
+        tol = ON_FACE_REL * cell_size
+        face, param = curves.find_exit(curve, cs, x, d, planes[cell], neighbours[cell], exclude, tol, cell_size)
+        if face < 0:
+            param = curves.interior_step(curve, cs)  # circular: a quarter turn inside the cell
+        if param == 0.0:
+            zero_run += 1
+        if (face < 0 and not math.isfinite(param)) or zero_run > MAX_ZERO_STEPS:
+            cell, status, slide_face, entry, t, s, nudge_run = _resolve_stall(mesh, prm, w, cnt, cell, m0, entry, t,
+                                                                              s, nudge_run)  # fmt: skip
+            zero_run = 0
+            continue
+        dt = curves.time_at(curve, cs, param, c_ref)
+        if not (dt >= 0.0):
+            status = STATUS_LOST
+            break
+        if t + dt >= max_time:
+            s = _finish_at_max_time(job, ray, w, param, t, s, m0)
+            t = max_time
+            status = STATUS_TIME_LIMIT
+            break
+        ds = curves.evaluate(curve, cs, x, d, param, xn, dn)
+        if ds > TINY_STEP_REL * cell_size:
+            zero_run = 0
+        elif param != 0.0:
+            zero_run += 1
+        if hooks_on:
+            _segment_hooks(job, ray, w, cell, face, param, t, s, dt, ds, m0)
+        for k in range(3):
+            x[k] = xn[k]
+            d[k] = dn[k]
+        t += dt
+        s += ds
+        if not (math.isfinite(x[0]) and math.isfinite(x[1]) and math.isfinite(x[2])):
+            status = STATUS_LOST
+            break
+        if record and t - w.f[F_T_LAST] >= dt_sample:
+            _emit(job.paths, cnt, ray.base, x, t, s)
+            w.f[F_T_LAST] = t
+        if param > 0.0:
+            nudge_run = 0
+        if face < 0:
+            entry = -1  # within-cell step (circular quarter turn): same cell, no entry face
+            continue
+        nxt = neighbours[cell, face]
+        if nxt >= 0:
+            dm = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
+            pp_run = pp_run + 1 if nxt == prev_cell and abs(dm) <= SLIDE_COS else 0
+            if pp_run >= PINGPONG_SLIDE:  # zig-zagging across this face: slide along it in the current cell
+                _onto_face(planes[cell, face], x, d, False)
+                slide_face = face
+                pp_run = 0
+                cnt[COUNT_NUDGES] += 1
+                continue
+            prev_cell = cell
+            entry = nb_face[cell, face]
+            cell = nxt
+            cnt[COUNT_CROSSINGS] += 1  # HOOK (b): crossed into the neighbour cell
+        elif nxt == BOUNDARY_REFLECT:
+            status, entry, slide_face = _reflect(job, ray, w, cell, face, param, t, s, entry)
+        else:
+            status = STATUS_EXITED
+    return cell, status, t, s
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _write_out(job, ray, w, rays, cell, status, t, s):
+    """HOOK (d): the ray has stopped (status set) at w.x, w.d, time t (s), arc s (m) in ``cell``: the pending
+    field time, the last path sample and beam chord, and the final state into row ray.i of ``rays``."""
+    prm = job.prm
+    cnt = ray.cnt
+    n_refl = cnt[COUNT_REFLECTIONS]
+    if ray.f_on and cell >= 0:
+        field.flush_pending(job.fld, ray.rf, n_refl, w.x, w.d, t, s, _slowness_at(job.mesh, prm, w, cell, ray.wind))
+    if prm.record and (cnt[COUNT_SAMPLES] == 0 or t > w.f[F_T_LAST]):
+        _emit(job.paths, cnt, ray.base, w.x, t, s)
+    if ray.deposit_on and s > ray.bray.last[beams.S_ARC]:  # the last chord
+        beams.ray_sample(job.beam, ray.acc, ray.bray, w.x, w.d, t, s, w.f[F_P_NORM] / prm.c_ref, w.par, n_refl,
+                         False)  # fmt: skip
+    if rays.out_par.shape[0] > 0:
+        out_par = rays.out_par[ray.i]
+        for k in range(paraxial.PAR_SIZE):
+            out_par[k] = w.par[k]
+        out_par[paraxial.PAR_SIZE] = w.f[F_P_NORM] if ray.par_on else math.nan
+    out_state = rays.out_state[ray.i]
+    for k in range(3):
+        out_state[STATE_X + k] = w.x[k]
+        out_state[STATE_D + k] = w.d[k]
+    out_state[STATE_TIME] = t
+    out_state[STATE_LENGTH] = s
+    cnt[COUNT_STATUS] = status
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -335,429 +747,19 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
 
     mesh : CellMesh; prm : RayParams; fld : field.FieldAcc (mode FIELD_OFF: no accumulation), written in
     accumulator slot ``acc``; paths : PathBuffers (ray i's slice); rays : Rays (row i read and written:
-    out_state, out_counts, refl_cos, refl_mat). With wind, each cell's curve is set up from the effective
-    medium c + u.e: its value at the entry point x, its gradient at the middle of the straight chord from
-    x along d through the cell (exact analytic derivatives there); e = the unit horizontal part of the
-    launch direction, fixed for the whole path. beam : beams.Beam (beam field and receiver points; the
-    paraxial state of docs/physics.md §10 is carried when beams are on or rays.out_par is asked for).
+    out_state, out_counts, refl_cos, refl_mat, out_par). With wind, each cell's curve is set up from the
+    effective medium c + u.e: its value at the entry point x, its gradient at the middle of the straight
+    chord from x along d through the cell (exact analytic derivatives there); e = the unit horizontal part
+    of the launch direction, fixed for the whole path. beam : beams.Beam (beam field and receiver points;
+    the paraxial state of docs/physics.md §10 is carried when beams are on or rays.out_par is asked for).
     """
-    planes = mesh.planes
-    neighbours = mesh.neighbours
-    neighbour_face = mesh.neighbour_face
-    media_ref = mesh.media_ref
-    ref_point = mesh.ref_point
-    gradient = mesh.gradient
-    size = mesh.size
-    face_material = mesh.face_material
-    curve = prm.curve
-    c_ref = prm.c_ref
-    wind_code = prm.wind_code
-    wind_params = prm.wind_params
-    max_time = prm.max_time
-    max_reflections = prm.max_reflections
-    max_steps = prm.max_steps
-    record = prm.record
-    dt_sample = prm.dt_sample
-    path_pts = paths.pts
-    path_t = paths.t
-    path_s = paths.s
-    path_cap = paths.cap
-    path_base = i * path_cap
-    i_ray = i  # (the name i is reused by the small loops below)
-    x_start = rays.origins[i]
-    d_start = rays.directions[i]
-    cell_start = rays.start_cells[i]
-    refl_cos = rays.refl_cos[i]
-    refl_mat = rays.refl_mat[i]
-    out_state = rays.out_state[i]
-    out_counts = rays.out_counts[i]
-    rf = field.new_ray_field(rays.f_weights[i], refl_cos, refl_mat, i, acc)
-    f_on = fld.mode != field.FIELD_OFF
-    fst = rf.fst
-    x = x_start.copy()
-    d = d_start.copy()
-    norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-    for i in range(3):
-        d[i] /= norm
-    # wind: the ray's horizontal launch azimuth e (the effective-sound-speed approximation keeps it for
-    # the whole path); a vertical launch has no azimuth and sees no wind (u . e = 0 for every horizontal u)
-    e_wind = np.zeros(3)
-    w_grad = np.empty(3)
-    g_eff = np.empty(3)
-    g_tmp = np.empty(3)
-    x_mid = np.empty(3)
-    ray_wind = WIND_NONE
-    if wind_code != WIND_NONE:
-        horizontal = math.sqrt(d[0] * d[0] + d[1] * d[1])
-        if horizontal > 0.0:
-            e_wind[0] = d[0] / horizontal
-            e_wind[1] = d[1] / horizontal
-            ray_wind = wind_code
-    wind_on = ray_wind != WIND_NONE
-    xn = np.empty(3)
-    dn = np.empty(3)
-    xs = np.empty(3)
-    ts = np.empty(3)
-    cs = np.zeros(curves.CS_SIZE)
-    t = 0.0
-    s = 0.0
-    cell = cell_start
-    # paraxial state and beam samples (docs/physics.md §10-11; parabolic curve)
-    want_par = rays.out_par.shape[0] > 0
-    deposit_on = beam.grid.mode != beams.BEAM_OFF or beam.pts.xyz.shape[0] > 0
-    par_on = (deposit_on or want_par) and cell_start >= 0
-    par = np.zeros(paraxial.PAR_SIZE)
-    par_tmp = np.zeros(paraxial.PAR_SIZE)
-    p_end = np.zeros(3)
-    bray = beams.new_ray(beam.grid.omega.shape[0])
-    launch_cos = math.sqrt(d[0] * d[0] + d[1] * d[1])
-    p_norm = 1.0
-    if par_on:
-        m_start = _media_at(media_ref, ref_point, gradient, cell, x)
-        if wind_on:
-            m_start = effective_quantity(curve, c_ref, m_start, gradient[cell], ray_wind, wind_params, x, e_wind,
-                                         w_grad, g_eff)  # fmt: skip
-        if m_start > 0.0:
-            p_norm = math.sqrt(m_start)
-            paraxial.launch(par, d, p_norm)
-            if deposit_on:
-                beams.ray_sample(beam, acc, bray, x, d, 0.0, 0.0, p_norm / c_ref, par, 0, refl_cos, refl_mat,
-                                 launch_cos, True)  # fmt: skip
-        else:
-            par_on = False
-    deposit_on = deposit_on and par_on
-    entry = -1
-    reflections = 0
-    crossings = 0
-    nudges = 0
-    nudge_run = 0
-    zero_run = 0
-    slide_face = -1
-    g_slide = np.empty(3)
-    g = np.empty(3)  # the gradient the current cell's curve is set up with
-    prev_cell = -1
-    pp_run = 0
-    steps = 0
-    status = STATUS_RUNNING
-    count = 0
-    t_last = 0.0
-    if record:
-        count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
-    if cell < 0:
-        status = STATUS_LOST
-    while status == STATUS_RUNNING:
-        if steps >= max_steps:
-            status = STATUS_STEP_LIMIT
-            break
-        steps += 1
-        m0 = _media_at(media_ref, ref_point, gradient, cell, x)
-        for i in range(3):  # copied, not viewed: a view per step costs two atomic reference-count updates
-            g[i] = gradient[cell, i]
-        if wind_on:
-            # m0, g become the effective medium's traced quantity (exact, at x) and its gradient (at the
-            # middle of the straight chord through the cell: the entry point's own gradient would make the
-            # per-cell model first-order accurate; measured on a log-law wind, errors fell only 3x per 3x
-            # thinner layers, and 10x with the chord middle). The curve, its exit, time_at (which then
-            # integrates 1/c_eff: the travel time in the moving medium), the nudge slowness and the field
-            # deposit all use them. Without wind nothing here changes.
-            m0 = effective_quantity(curve, c_ref, m0, g, wind_code, wind_params, x, e_wind, w_grad, g_eff)
-            if _chord_middle(planes[cell], neighbours[cell], x, d, x_mid):
-                effective_quantity(
-                    curve,
-                    c_ref,
-                    _media_at(media_ref, ref_point, gradient, cell, x_mid),
-                    g,
-                    wind_code,
-                    wind_params,
-                    x_mid,
-                    e_wind,
-                    w_grad,
-                    g_eff,
-                )
-            for i in range(3):
-                g[i] = g_eff[i]
-        exclude = entry
-        if slide_face >= 0:
-            # slide along the face: the mean gradient of the two sides without its normal part
-            nb_cell = neighbours[cell, slide_face]
-            for i in range(3):
-                g_slide[i] = g[i]
-                if nb_cell >= 0 and not wind_on:
-                    g_slide[i] = 0.5 * (g[i] + gradient[nb_cell, i])
-            gm = (
-                g_slide[0] * planes[cell, slide_face, 0]
-                + g_slide[1] * planes[cell, slide_face, 1]
-                + g_slide[2] * planes[cell, slide_face, 2]
-            )
-            for i in range(3):
-                g[i] = g_slide[i] - gm * planes[cell, slide_face, i]
-            exclude = slide_face
-            slide_face = -1
-        if not curves.setup(curve, m0, g, d, cs):
-            status = STATUS_LOST
-            break
-        if par_on:  # the segment restarts from this cell's model at x: p' = n'(x) d (docs/physics.md §10)
-            n_new = math.sqrt(m0)
-            paraxial.restart(par, d, p_norm, n_new, g)
-            p_norm = n_new
-        cell_size = size[cell]
-        face, param = curves.find_exit(
-            curve, cs, x, d, planes[cell], neighbours[cell], exclude, ON_FACE_REL * cell_size, cell_size
-        )
-        if face < 0:
-            param = curves.interior_step(curve, cs)  # circular: a quarter turn inside the cell
-        if param == 0.0:
-            zero_run += 1
-        if (face < 0 and not math.isfinite(param)) or zero_run > MAX_ZERO_STEPS:
-            # rounding at an edge or vertex left no consistent exit: nudge and re-locate
-            nudges += 1
-            nudge_run += 1
-            zero_run = 0
-            if nudge_run > MAX_NUDGES_IN_A_ROW:
-                status = STATUS_LOST
-                break
-            tf = _tangent_face(planes[cell], neighbours[cell], x, d, size[cell])
-            if tf >= 0:
-                _onto_face(planes[cell, tf], x, d, True)
-                slide_face = tf
-                continue
-            eta = NUDGE_REL * cell_size
-            t += eta * curves.slowness(curve, m0, c_ref)
-            s += eta
-            cell, status = _nudge(planes, neighbours, cell, x, d, eta)
-            entry = -1
-            continue
-        dt = curves.time_at(curve, cs, param, c_ref)
-        if not (dt >= 0.0):
-            status = STATUS_LOST
-            break
-        if t + dt >= max_time:
-            param_end = curves.param_at_time(curve, cs, max_time - t, param, c_ref)
-            ds = curves.evaluate(curve, cs, x, d, param_end, xn, dn)
-            if par_on:  # HOOK (a), paraxial: the last segment, to max_time
-                if deposit_on:
-                    _beam_segment(beam, acc, bray, curve, cs, x, d, param_end, t, s, ds, c_ref, par, par_tmp, p_end,
-                                  reflections, refl_cos, refl_mat, launch_cos, xs, ts)  # fmt: skip
-                paraxial.advance(par, param_end)
-                p_norm = _p_at(cs, param_end, p_end)
-                if deposit_on:
-                    beams.ray_sample(beam, acc, bray, xn, dn, max_time, s + ds, p_norm / c_ref, par, reflections,
-                                     refl_cos, refl_mat, launch_cos, False)  # fmt: skip
-            if f_on:
-                field.deposit_segment(
-                    fld,
-                    rf,
-                    reflections,
-                    curve,
-                    c_ref,
-                    cs,
-                    x,
-                    d,
-                    xn,
-                    m0,
-                    g,
-                    field.Segment(param_end, t, s, max_time - t, ds),
-                )
-            if record and max_time - t > dt_sample:
-                count, t_last = _emit_segment(
-                    curve,
-                    cs,
-                    x,
-                    d,
-                    param_end,
-                    t,
-                    s,
-                    max_time,
-                    c_ref,
-                    t_last,
-                    dt_sample,
-                    path_pts,
-                    path_t,
-                    path_s,
-                    path_base,
-                    path_cap,
-                    count,
-                    xs,
-                    ts,
-                )
-            for i in range(3):
-                x[i] = xn[i]
-                d[i] = dn[i]
-            t = max_time
-            s += ds
-            status = STATUS_TIME_LIMIT  # HOOK (a): the last segment, to max_time
-            break
-        ds = curves.evaluate(curve, cs, x, d, param, xn, dn)
-        if ds > TINY_STEP_REL * cell_size:
-            zero_run = 0
-        elif param != 0.0:
-            zero_run += 1
-        if par_on:  # HOOK (a), paraxial: samples inside the segment, derivatives at its end (on its face)
-            if deposit_on:
-                _beam_segment(beam, acc, bray, curve, cs, x, d, param, t, s, ds, c_ref, par, par_tmp, p_end,
-                              reflections, refl_cos, refl_mat, launch_cos, xs, ts)  # fmt: skip
-            paraxial.advance(par, param)
-            p_norm = _p_at(cs, param, p_end)
-            if face >= 0:
-                paraxial.onto_face(par, planes[cell, face], p_end, g, math.inf)
-                if deposit_on and (neighbours[cell, face] < 0 or s + ds - bray.last[beams.S_ARC] >= beam.tabs.chord_m):
-                    beams.ray_sample(beam, acc, bray, xn, dn, t + dt, s + ds, p_norm / c_ref, par, reflections,
-                                     refl_cos, refl_mat, launch_cos, False)  # fmt: skip
-        if f_on:
-            field.deposit_segment(
-                fld, rf, reflections, curve, c_ref, cs, x, d, xn, m0, g, field.Segment(param, t, s, dt, ds)
-            )
-        if record:
-            if dt > dt_sample:
-                count, t_last = _emit_segment(
-                    curve,
-                    cs,
-                    x,
-                    d,
-                    param,
-                    t,
-                    s,
-                    t + dt,
-                    c_ref,
-                    t_last,
-                    dt_sample,
-                    path_pts,
-                    path_t,
-                    path_s,
-                    path_base,
-                    path_cap,
-                    count,
-                    xs,
-                    ts,
-                )
-        for i in range(3):
-            x[i] = xn[i]
-            d[i] = dn[i]
-        t += dt
-        s += ds
-        if not (math.isfinite(x[0]) and math.isfinite(x[1]) and math.isfinite(x[2])):
-            status = STATUS_LOST
-            break
-        if record and t - t_last >= dt_sample:
-            count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
-            t_last = t
-        if param > 0.0:
-            nudge_run = 0
-        # HOOK (a): a segment inside the cell ended here (x, d, t, s updated; cell not yet changed)
-        if face < 0:
-            entry = -1  # within-cell step (circular quarter turn): same cell, no entry face
-            continue
-        nxt = neighbours[cell, face]
-        if nxt >= 0:
-            dm = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
-            if nxt == prev_cell and abs(dm) <= SLIDE_COS:
-                pp_run += 1
-            else:
-                pp_run = 0
-            if pp_run >= PINGPONG_SLIDE:
-                # zig-zagging across this face: slide along it in the current cell
-                _onto_face(planes[cell, face], x, d, False)
-                slide_face = face
-                pp_run = 0
-                nudges += 1
-                continue
-            prev_cell = cell
-            entry = neighbour_face[cell, face]
-            cell = nxt
-            crossings += 1  # HOOK (b): crossed into the neighbour cell
-        elif nxt == BOUNDARY_REFLECT:
-            dot = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
-            if param == 0.0 and abs(dot) <= GRAZE_COS:
-                # on the boundary, moving along it and curving into it: the limit of vanishing bounces
-                # is creeping along the surface; slide (no reflection: the direction would not change)
-                slide_face = face
-                entry = -1
-                continue
-            if reflections >= max_reflections:
-                status = STATUS_REFLECTION_LIMIT
-                break
-            if f_on:  # time gathered before the reflection belongs to the incoming ray
-                field.flush_pending(
-                    fld,
-                    rf,
-                    reflections,
-                    x,
-                    d,
-                    t,
-                    s,
-                    _slowness_at(
-                        curve,
-                        c_ref,
-                        media_ref,
-                        ref_point,
-                        gradient,
-                        cell,
-                        x,
-                        ray_wind,
-                        wind_params,
-                        e_wind,
-                        w_grad,
-                        g_tmp,
-                    ),
-                )
-                if face_material[cell, face] > 0:
-                    fst[2] = -1.0  # a soft reflection: re-evaluate the ground factors
-            if reflections < refl_cos.shape[0]:
-                refl_cos[reflections] = abs(dot)
-                refl_mat[reflections] = face_material[cell, face]
-            for i in range(3):
-                d[i] -= 2.0 * dot * planes[cell, face, i]
-            norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-            for i in range(3):
-                d[i] /= norm
-            reflections += 1
-            entry = face  # HOOK (c): specular reflection done (d reflected)
-            if par_on:
-                paraxial.reflect(par, planes[cell, face])
-                if deposit_on:
-                    beams.ray_sample(beam, acc, bray, x, d, t, s, p_norm / c_ref, par, reflections, refl_cos,
-                                     refl_mat, launch_cos, True)  # fmt: skip
-            if record and t > t_last:
-                count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
-                t_last = t
-        else:
-            status = STATUS_EXITED
-            break
-    # HOOK (d): the ray has stopped (status set)
-    if f_on and cell >= 0:
-        field.flush_pending(
-            fld,
-            rf,
-            reflections,
-            x,
-            d,
-            t,
-            s,
-            _slowness_at(
-                curve, c_ref, media_ref, ref_point, gradient, cell, x, ray_wind, wind_params, e_wind, w_grad, g_tmp
-            ),
-        )
-    if record and (count == 0 or t > t_last):
-        count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
-    if deposit_on and s > bray.last[beams.S_ARC]:  # HOOK (d), paraxial: the last chord
-        beams.ray_sample(beam, acc, bray, x, d, t, s, p_norm / c_ref, par, reflections, refl_cos, refl_mat,
-                         launch_cos, False)  # fmt: skip
-    if want_par:
-        out_par = rays.out_par[i_ray]
-        for k in range(paraxial.PAR_SIZE):
-            out_par[k] = par[k]
-        out_par[paraxial.PAR_SIZE] = p_norm if par_on else math.nan
-    for k in range(3):
-        out_state[STATE_X + k] = x[k]
-        out_state[STATE_D + k] = d[k]
-    out_state[STATE_TIME] = t
-    out_state[STATE_LENGTH] = s
-    out_counts[COUNT_STATUS] = status
-    out_counts[COUNT_REFLECTIONS] = reflections
-    out_counts[COUNT_CROSSINGS] = crossings
-    out_counts[COUNT_NUDGES] = nudges
-    out_counts[COUNT_STEPS] = steps
-    out_counts[COUNT_SAMPLES] = count
+    w = _new_work(rays.origins[i], rays.directions[i])
+    ray = _launch(mesh, prm, fld, beam, rays, i, acc, paths.cap, w)
+    job = Job(mesh, prm, fld, paths, beam)
+    if prm.record:
+        _emit(paths, ray.cnt, ray.base, w.x, 0.0, 0.0)
+    cell, status, t, s = _walk_cells(job, ray, w, rays.start_cells[i])
+    _write_out(job, ray, w, rays, cell, status, t, s)
 
 
 @nb.njit(**PARALLEL_FLAGS)
