@@ -323,7 +323,7 @@ DEFAULT_N_R = 321
 
 
 def build_q_table(
-    frequencies_hz: Sequence[float],
+    frequencies_hz: Sequence[float] | np.ndarray,
     flow_resistivities: Sequence[float | None],
     n_cos: int = DEFAULT_N_COS,
     n_r: int = DEFAULT_N_R,

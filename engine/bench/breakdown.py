@@ -244,7 +244,7 @@ def phase_times(
     min_total_s: float = 0.3,
 ) -> dict[str, Any]:
     """Total trace time and its split (module docstring), seconds, best of ``repeats`` warm runs each."""
-    kw = {"max_time_s": max_time_s, "max_reflections": max_reflections}
+    kw: dict[str, Any] = {"max_time_s": max_time_s, "max_reflections": max_reflections}
     trace(mesh, curve, c_ref, origins[:1], directions[:1], start_cells[:1], **kw)  # compile
     total, res = best_time(
         lambda: trace(mesh, curve, c_ref, origins, directions, start_cells, **kw), repeats, min_total_s

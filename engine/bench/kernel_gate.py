@@ -32,6 +32,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import time
+from typing import Any
 
 import numpy as np
 
@@ -103,7 +104,7 @@ def save(path: str) -> None:
     """Trace every case and save the arrays to ``path`` (.npz)."""
     from bentray.engine.tracer import trace
 
-    out: dict[str, np.ndarray] = {}
+    out: dict[str, Any] = {}
     winds = _winds()
     _scenes_cache.update(_scenes())
     for name, (mesh, o, d, cells) in _scenes_cache.items():
@@ -112,7 +113,7 @@ def save(path: str) -> None:
         hi = mesh.ref_point.max(axis=0)
         mid = 0.5 * (lo + hi)
         lo, hi = np.minimum(lo, mid - 50.0), np.maximum(hi, mid + 50.0)  # slabs: all ref points at y = 0
-        kw = {"max_time_s": 10.0, "max_reflections": 30}
+        kw: dict[str, Any] = {"max_time_s": 10.0, "max_reflections": 30}
         for wind_name, wind in (("still", None), ("wind", winds[name])):
             key = f"{name}/{wind_name}"
             t0 = time.perf_counter()
@@ -133,7 +134,7 @@ def save(path: str) -> None:
         mesh, o, d, cells = _scenes_cache[name]
         for curve in ("n_linear", "circular"):
             cm = _soft(_requantify(SceneMesh(name, mesh, o, d, cells, 0.0), curve))
-            kw = {"max_time_s": 10.0, "max_reflections": 30}
+            kw: dict[str, Any] = {"max_time_s": 10.0, "max_reflections": 30}
             key = f"{name}/{curve}"
             _store(out, f"{key}/wind", trace(cm, curve, 340.0, o, d, cells, wind=winds[name], **kw), None)
             buf = _buffers("incoherent", len(o), cm.ref_point.min(axis=0) - 50.0, cm.ref_point.max(axis=0) + 50.0, 3)
@@ -168,7 +169,7 @@ def save_baselines(path: str) -> None:
     case = CASES["A-LD"]
     ald = _stratified_scene(4)
     o, d = case.fan(16)
-    common = {
+    common: dict[str, Any] = {
         "origins": o,
         "directions": d,
         "max_time_s": 4.0,
@@ -177,11 +178,11 @@ def save_baselines(path: str) -> None:
         "domain_min": np.asarray(case.domain_min, float),
         "domain_max": np.asarray(case.domain_max, float),
     }
-    media_kw = {
+    media_kw: dict[str, dict[str, Any]] = {
         "mesh": {"mesh": ald.mesh, "start_cells": np.repeat(ald.start_cells[:1], len(o))},
         "exact": {"exact_spec": exact_media_spec(case.profile())},
     }
-    out: dict[str, np.ndarray] = {}
+    out: dict[str, Any] = {}
     for media, mkw in media_kw.items():
         for method in ("euler", "euler_adaptive", "rk4", "dopri5"):
             for renorm in (False, True):
@@ -195,7 +196,7 @@ def save_baselines(path: str) -> None:
                 out[f"{key}/restarts"] = restarts
                 out[f"{key}/rejected"] = stats["rejected"]
                 out[f"{key}/evaluations"] = stats["evaluations"]
-                print(f"{key}: steps {int(res.steps.sum())}, restarts {int(restarts.sum())}", flush=True)
+                print(f"{key}: steps {int(np.sum(res.steps))}, restarts {int(restarts.sum())}", flush=True)
     np.savez(path, **out)
     print(f"saved {len(out)} arrays to {path}")
 
@@ -221,7 +222,7 @@ def _time_once() -> None:
     from bentray.engine.tracer import trace
 
     sc = build_scene_mesh("desert", 2000)
-    kw = {"max_time_s": 10.0, "max_reflections": 3}
+    kw: dict[str, Any] = {"max_time_s": 10.0, "max_reflections": 3}
     trace(sc.mesh, "parabolic", 340.0, sc.origins, sc.directions, sc.start_cells, **kw)
     best = np.inf
     for _ in range(3):

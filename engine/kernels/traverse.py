@@ -484,6 +484,50 @@ def _slide_gradient(mesh, w, cell, face, wind_on):
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
+def _cell_medium(mesh, prm, w, cell, wind, entry, slide_face):
+    """The traced quantity at w.x (returned) and the gradient w.g of the curve in ``cell``: the cell's model,
+    with wind the effective medium, and sliding along ``slide_face`` (>= 0) its in-plane part. Returns
+    (m0, the face the exit search excludes: the slide face, else the entry face)."""
+    gradient = mesh.gradient
+    m0 = _media_at(mesh.media_ref, mesh.ref_point, gradient, cell, w.x)
+    for k in range(3):  # copied, not viewed: a view per step costs two atomic reference-count updates
+        w.g[k] = gradient[cell, k]
+    if wind != WIND_NONE:
+        m0 = _wind_medium(mesh, prm, w, cell, wind, m0)
+    if slide_face >= 0:
+        _slide_gradient(mesh, w, cell, slide_face, wind != WIND_NONE)
+        return m0, slide_face
+    return m0, entry
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _restart_paraxial(w, m0):
+    """The segment restarts from the cell's model at x: p' = n'(x) d (docs/physics.md §10); w.f[F_P_NORM]
+    becomes n'(x) = sqrt(m0)."""
+    n_new = math.sqrt(m0)
+    paraxial.restart(w.par, w.d, w.f[F_P_NORM], n_new, w.g)
+    w.f[F_P_NORM] = n_new
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _cross_face(mesh, w, cnt, cell, face, entry, prev_cell, pp_run):
+    """Into the neighbour across ``face`` of ``cell`` (a crossing counted in cnt), unless the ray has zig-
+    zagged across this face PINGPONG_SLIDE times in a row while moving along it: then it slides along the
+    face in the current cell (counted as a nudge). Returns (cell, entry, prev_cell, pp_run, slide_face)."""
+    planes = mesh.planes
+    d = w.d
+    nxt = mesh.neighbours[cell, face]
+    dm = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
+    pp_run = pp_run + 1 if nxt == prev_cell and abs(dm) <= SLIDE_COS else 0
+    if pp_run >= PINGPONG_SLIDE:
+        _onto_face(planes[cell, face], w.x, d, False)
+        cnt[COUNT_NUDGES] += 1
+        return cell, entry, prev_cell, 0, face
+    cnt[COUNT_CROSSINGS] += 1
+    return nxt, mesh.neighbour_face[cell, face], cell, pp_run, -1
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
 def _resolve_stall(mesh, prm, w, cnt, cell, m0, entry, t, s, nudge_run):
     """No consistent exit (rounding at an edge or vertex, or too many zero-length steps): slide along the
     face x lies on and d moves along, else nudge x by NUDGE_REL x cell size along d and re-locate it.
@@ -607,20 +651,16 @@ def _reflect(job, ray, w, cell, face, param, t, s, entry):
 
 @nb.njit(inline="always", **NJIT_FLAGS)
 def _walk_cells(job, ray, w, cell):
-    """The per-cell loop of Algorithm 1 from ``cell`` (x, d in w; counters in ray.cnt) until the ray stops:
-    returns (cell, status, t, s). Per step: the cell's medium, the curve through it, its first exit; a stall
-    is resolved by a slide or a nudge; the last segment ends at max_time; otherwise the segment is walked
-    to its end (HOOK (a)) and the ray crosses into the neighbour (HOOK (b)), reflects (HOOK (c)) or exits."""
+    """The per-cell loop of Algorithm 1 from ``cell`` (x, d in w; counters in ray.cnt) until the ray stops;
+    returns (cell, status, t, s). Per step: medium, curve, first exit (a stall: slide or nudge), the segment
+    (to max_time, or to its end: HOOK (a)), then the neighbour (HOOK (b)), a reflection (HOOK (c)) or exit."""
     mesh = job.mesh
     prm = job.prm
-    planes, neighbours, nb_face, gradient = mesh.planes, mesh.neighbours, mesh.neighbour_face, mesh.gradient
-    media_ref, ref_point, size = mesh.media_ref, mesh.ref_point, mesh.size
-    x, d, xn, dn, cs, g = w.x, w.d, w.xn, w.dn, w.cs, w.g
+    planes, neighbours, size = mesh.planes, mesh.neighbours, mesh.size
+    x, d, xn, dn, cs = w.x, w.d, w.xn, w.dn, w.cs
     curve, c_ref, max_time, dt_sample, record = prm.curve, prm.c_ref, prm.max_time, prm.dt_sample, prm.record
     cnt = ray.cnt
-    wind_on = ray.wind != WIND_NONE
-    par_on = ray.par_on
-    hooks_on = par_on or ray.f_on or record
+    hooks_on = ray.par_on or ray.f_on or record
     t = 0.0
     s = 0.0
     entry = slide_face = prev_cell = -1
@@ -631,23 +671,13 @@ def _walk_cells(job, ray, w, cell):
             status = STATUS_STEP_LIMIT
             break
         cnt[COUNT_STEPS] += 1
-        m0 = _media_at(media_ref, ref_point, gradient, cell, x)
-        for k in range(3):  # copied, not viewed: a view per step costs two atomic reference-count updates
-            g[k] = gradient[cell, k]
-        if wind_on:
-            m0 = _wind_medium(mesh, prm, w, cell, ray.wind, m0)
-        exclude = entry
-        if slide_face >= 0:
-            _slide_gradient(mesh, w, cell, slide_face, wind_on)
-            exclude = slide_face
-            slide_face = -1
-        if not curves.setup(curve, m0, g, d, cs):
+        m0, exclude = _cell_medium(mesh, prm, w, cell, ray.wind, entry, slide_face)
+        slide_face = -1
+        if not curves.setup(curve, m0, w.g, d, cs):
             status = STATUS_LOST
             break
-        if par_on:  # the segment restarts from this cell's model at x: p' = n'(x) d (docs/physics.md §10)
-            n_new = math.sqrt(m0)
-            paraxial.restart(w.par, d, w.f[F_P_NORM], n_new, g)
-            w.f[F_P_NORM] = n_new
+        if ray.par_on:  # the segment restarts from this cell's model at x: p' = n'(x) d (docs/physics.md §10)
+            _restart_paraxial(w, m0)
         cell_size = size[cell]
         tol = ON_FACE_REL * cell_size
         face, param = curves.find_exit(curve, cs, x, d, planes[cell], neighbours[cell], exclude, tol, cell_size)
@@ -693,19 +723,8 @@ def _walk_cells(job, ray, w, cell):
             entry = -1  # within-cell step (circular quarter turn): same cell, no entry face
             continue
         nxt = neighbours[cell, face]
-        if nxt >= 0:
-            dm = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
-            pp_run = pp_run + 1 if nxt == prev_cell and abs(dm) <= SLIDE_COS else 0
-            if pp_run >= PINGPONG_SLIDE:  # zig-zagging across this face: slide along it in the current cell
-                _onto_face(planes[cell, face], x, d, False)
-                slide_face = face
-                pp_run = 0
-                cnt[COUNT_NUDGES] += 1
-                continue
-            prev_cell = cell
-            entry = nb_face[cell, face]
-            cell = nxt
-            cnt[COUNT_CROSSINGS] += 1  # HOOK (b): crossed into the neighbour cell
+        if nxt >= 0:  # HOOK (b): crossed into the neighbour cell (or sliding along a face it zig-zags across)
+            cell, entry, prev_cell, pp_run, slide_face = _cross_face(mesh, w, cnt, cell, face, entry, prev_cell, pp_run)
         elif nxt == BOUNDARY_REFLECT:
             status, entry, slide_face = _reflect(job, ray, w, cell, face, param, t, s, entry)
         else:
