@@ -134,7 +134,7 @@ def save(path: str) -> None:
         mesh, o, d, cells = _scenes_cache[name]
         for curve in ("n_linear", "circular"):
             cm = _soft(_requantify(SceneMesh(name, mesh, o, d, cells, 0.0), curve))
-            kw: dict[str, Any] = {"max_time_s": 10.0, "max_reflections": 30}
+            kw = {"max_time_s": 10.0, "max_reflections": 30}
             key = f"{name}/{curve}"
             _store(out, f"{key}/wind", trace(cm, curve, 340.0, o, d, cells, wind=winds[name], **kw), None)
             buf = _buffers("incoherent", len(o), cm.ref_point.min(axis=0) - 50.0, cm.ref_point.max(axis=0) + 50.0, 3)
@@ -186,7 +186,8 @@ def save_baselines(path: str) -> None:
     for media, mkw in media_kw.items():
         for method in ("euler", "euler_adaptive", "rk4", "dopri5"):
             for renorm in (False, True):
-                setting = {"step_m": 5.0} if method in ("euler", "rk4") else {"step_m": 2.0, "tolerance": 1e-6}
+                fixed = method in ("euler", "rk4")
+                setting: dict[str, Any] = {"step_m": 5.0} if fixed else {"step_m": 2.0, "tolerance": 1e-6}
                 stats: dict[str, np.ndarray] = {}
                 res, restarts = trace_numerical(
                     method, media, renormalize=renorm, stats=stats, **setting, **mkw, **common
@@ -196,7 +197,7 @@ def save_baselines(path: str) -> None:
                 out[f"{key}/restarts"] = restarts
                 out[f"{key}/rejected"] = stats["rejected"]
                 out[f"{key}/evaluations"] = stats["evaluations"]
-                print(f"{key}: steps {int(np.sum(res.steps))}, restarts {int(restarts.sum())}", flush=True)
+                print(f"{key}: steps {int(np.asarray(res.steps).sum())}, restarts {int(restarts.sum())}", flush=True)
     np.savez(path, **out)
     print(f"saved {len(out)} arrays to {path}")
 
