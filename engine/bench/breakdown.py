@@ -104,11 +104,12 @@ def _mirror(planes, cell, face, d):
         d[j] /= math.sqrt(nrm)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@nb.njit(**NJIT_FLAGS)
 def _record_ray(mesh, wp, x, d, cell, ent, first):
     """Walk one ray from x, d (3,) in ``cell`` (x, d overwritten), storing each cell entry into ``ent``
     from slot ``first`` on (at most wp.cap); stops where it finds no exit, at max_time, at an open face or
-    past max_reflections. Returns the number of entries stored."""
+    past max_reflections. Returns the number of entries stored. (Called, not inlined: inlined into the
+    prange loop of _record the stores into ent.d came out as zeros.)"""
     planes, neighbours, gradient, size = mesh.planes, mesh.neighbours, mesh.gradient, mesh.size
     xn = np.empty(3)
     dn = np.empty(3)
