@@ -5,6 +5,8 @@ Every tolerance says why it has the value it has. Units: metres, seconds, m/s un
 
 from __future__ import annotations
 
+from typing import Any
+
 # ---------------------------------------------------------------------------------------------
 # Ray end states (int8 in kernels). Every ray ends with exactly one of these; the report counts them.
 # ---------------------------------------------------------------------------------------------
@@ -124,5 +126,11 @@ TIME_SOLVE_ITERS = 50
 # ---------------------------------------------------------------------------------------------
 # error_model="numpy": float division by zero gives inf/nan (checked explicitly) instead of raising,
 # which also lets numba drop the per-division zero checks in the hot loops.
-NJIT_FLAGS = {"cache": True, "fastmath": False, "nogil": True, "error_model": "numpy"}
-PARALLEL_FLAGS = {"cache": True, "fastmath": False, "nogil": True, "error_model": "numpy", "parallel": True}
+NJIT_FLAGS: dict[str, Any] = {"cache": True, "fastmath": False, "nogil": True, "error_model": "numpy"}
+PARALLEL_FLAGS: dict[str, Any] = {
+    "cache": True,
+    "fastmath": False,
+    "nogil": True,
+    "error_model": "numpy",
+    "parallel": True,
+}

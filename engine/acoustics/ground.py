@@ -323,7 +323,7 @@ DEFAULT_N_R = 321
 
 
 def build_q_table(
-    frequencies_hz: Sequence[float],
+    frequencies_hz: Sequence[float] | np.ndarray,
     flow_resistivities: Sequence[float | None],
     n_cos: int = DEFAULT_N_COS,
     n_r: int = DEFAULT_N_R,
@@ -393,14 +393,13 @@ def build_q2_table(
     return Q2Table(table=q.table[..., 0] ** 2 + q.table[..., 1] ** 2, grid=q.grid)
 
 
-@nb.njit(**NJIT_FLAGS)
-def q_lookup(table: np.ndarray, grid: np.ndarray, mat: int, band: int, cos_theta: float, r: float):
-    """Bilinear interpolation of complex Q from :func:`build_q_table` (same axes as :func:`q2_lookup`).
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _table_cell(grid: np.ndarray, n_cos: int, n_r: int, cos_theta: float, r: float):
+    """Lower node (i, j) and fractions (tu, tr) in [0, 1] of the table cell holding (cos_theta, r).
 
-    Returns (Re Q, Im Q). mat and band must index the table (the caller checks them once per job).
+    The axes of :func:`build_q_table` / :func:`build_q2_table`: ln(cos th + cos_eps) with cos th clamped to
+    [0, 1], and ln R2 (r <= 0 is treated as r_min), both clamped at the end nodes. Returns (i, tu, j, tr).
     """
-    n_cos = table.shape[2]
-    n_r = table.shape[3]
     c = min(max(cos_theta, 0.0), 1.0)
     fu = (math.log(c + grid[4]) - grid[0]) / grid[1]
     fu = min(max(fu, 0.0), n_cos - 1.0)
@@ -410,6 +409,16 @@ def q_lookup(table: np.ndarray, grid: np.ndarray, mat: int, band: int, cos_theta
     fr = min(max(fr, 0.0), n_r - 1.0)
     j = min(int(fr), n_r - 2)
     tr = fr - j
+    return i, tu, j, tr
+
+
+@nb.njit(**NJIT_FLAGS)
+def q_lookup(table: np.ndarray, grid: np.ndarray, mat: int, band: int, cos_theta: float, r: float):
+    """Bilinear interpolation of complex Q from :func:`build_q_table` (same axes as :func:`q2_lookup`).
+
+    Returns (Re Q, Im Q). mat and band must index the table (the caller checks them once per job).
+    """
+    i, tu, j, tr = _table_cell(grid, table.shape[2], table.shape[3], cos_theta, r)
     out_re = 0.0
     out_im = 0.0
     for part in range(2):
@@ -433,17 +442,7 @@ def q2_lookup(table: np.ndarray, grid: np.ndarray, mat: int, band: int, cos_thet
     cos_theta : cos of the incidence angle from the normal (clamped to [0, 1]); r : R2 in metres
     (r <= 0 is treated as r_min). Returns |Q|^2 (float64); NaN inputs give NaN.
     """
-    n_cos = table.shape[2]
-    n_r = table.shape[3]
-    c = min(max(cos_theta, 0.0), 1.0)
-    fu = (math.log(c + grid[4]) - grid[0]) / grid[1]
-    fu = min(max(fu, 0.0), n_cos - 1.0)
-    i = min(int(fu), n_cos - 2)
-    tu = fu - i
-    fr = (math.log(r) - grid[2]) / grid[3] if r > 0.0 else 0.0
-    fr = min(max(fr, 0.0), n_r - 1.0)
-    j = min(int(fr), n_r - 2)
-    tr = fr - j
+    i, tu, j, tr = _table_cell(grid, table.shape[2], table.shape[3], cos_theta, r)
     a = table[mat, band, i, j] + (table[mat, band, i, j + 1] - table[mat, band, i, j]) * tr
     b = table[mat, band, i + 1, j] + (table[mat, band, i + 1, j + 1] - table[mat, band, i + 1, j]) * tr
     return a + (b - a) * tu

@@ -30,6 +30,7 @@ trace_numerical uses for boundaries and the time limit.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
@@ -413,22 +414,51 @@ def first_guess(method, kind, pl, y0, y1, h, g0, g1, c_ref):
     return u * h
 
 
+class StepWork(NamedTuple):
+    """One ray's integration arrays (float64, (NY,) unless noted), allocated once per ray.
+
+    y0, k1 : the state and f(y0); y1, knew, yerr : a step's end state, f(y1) (when known) and error
+    estimate; work : (WORK_ROWS, NY) the stages; ys : (NY,) scratch (samples, gradients); evp, grz : (4,)
+    the plane (m, h) of the step's event and of a plane the ray grazes (baselines/trace_numerical.py).
+    """
+
+    y0: np.ndarray
+    k1: np.ndarray
+    y1: np.ndarray
+    knew: np.ndarray
+    yerr: np.ndarray
+    work: np.ndarray
+    ys: np.ndarray
+    evp: np.ndarray
+    grz: np.ndarray
+
+
 @nb.njit(**NJIT_FLAGS)
-def land(method, media, cell, y0, k1, lo, glo, hi, ghi, hk, kind, pl, t_end, eps, y1, knew, yerr, work):
-    """Restart the step from y0 with reduced lengths until |g(advance(y0, h))| <= eps.
+def new_step_work():
+    """Zeroed StepWork."""
+    return StepWork(np.zeros(NY), np.zeros(NY), np.zeros(NY), np.zeros(NY), np.zeros(NY), np.zeros((WORK_ROWS, NY)),
+                    np.zeros(NY), np.zeros(4), np.zeros(4))  # fmt: skip
+
+
+@nb.njit(**NJIT_FLAGS)
+def land(method, media, cell, sw, bracket, hk, kind, pl, t_end, eps):
+    """Restart the step from sw.y0 (f = sw.k1) with reduced lengths until |g(advance(y0, h))| <= eps.
 
     One Newton step with the event rate at the landed state as derivative, then secant steps through
-    the last two restarts; regula falsi / bisection inside the bracket ``g(lo) = glo <= 0 < ghi = g(hi)``
-    whenever a step leaves it. ``hk`` is the first guess. Leaves y1 = advance(y0, h).
-    Returns (h, ok, has_knew, restarts).
+    the last two restarts; regula falsi / bisection inside the bracket ``(lo, glo, hi, ghi)``,
+    ``g(lo) = glo <= 0 < ghi = g(hi)``, whenever a step leaves it. ``hk`` is the first guess; kind, pl,
+    t_end : the event (EVENT_PLANE with plane pl (4,), or EVENT_TIME at t_end s). Leaves sw.y1 =
+    advance(y0, h) (sw.knew, sw.yerr, sw.work its by-products). Returns (h, ok, has_knew, restarts).
     """
+    lo, glo, hi, ghi = bracket
+    y1 = sw.y1
     restarts = 0
     ok = True
     has = False
     h_prev = math.nan
     g_prev = math.nan
     for _ in range(MAX_LAND_ITERS):
-        ok, has = advance(method, media, cell, y0, k1, hk, y1, knew, yerr, work)
+        ok, has = advance(method, media, cell, sw.y0, sw.k1, hk, y1, sw.knew, sw.yerr, sw.work)
         restarts += 1
         if not ok:
             break

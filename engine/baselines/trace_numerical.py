@@ -31,6 +31,7 @@ converge). ``p`` is not renormalised to ``|p| = n(x)`` after a step unless ``ren
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numba as nb
 import numpy as np
@@ -42,13 +43,13 @@ from bentray.engine.baselines.integrators import (
     MEDIA_MESH,
     METHOD_CODES,
     NY,
-    WORK_ROWS,
     advance,
     controlled_step,
     first_guess,
     land,
     make_media,
     media_n,
+    new_step_work,
     plane_g,
     rhs,
 )
@@ -73,6 +74,7 @@ from bentray.engine.constants import (
     STATUS_STEP_LIMIT,
     STATUS_TIME_LIMIT,
 )
+from bentray.engine.kernels.traverse import PathBuffers
 from bentray.engine.mesh.cells import CellMesh, locate_points
 from bentray.engine.result import TraceResult, gather_paths, kernel_trace_result
 from bentray.engine.tracer import path_capacity
@@ -164,26 +166,66 @@ def _detect(y0, y1, bplanes, btags, media, cell, max_time, eps_x, eps_t, evp, gr
     return kind, tag, best, bg0, bg1, grz_tag, walk_ok
 
 
+class NumParams(NamedTuple):
+    """What every ray of one trace_numerical call shares: method (METHOD_CODES value), max_time (s),
+    max_reflections, max_steps (accepted steps), step_m (m of arc: fixed step, or the first adaptive one),
+    tol (absolute local error per step), renormalize (|p| = n after each step), record (path samples on),
+    dt_sample (s between path samples)."""
+
+    method: int
+    max_time: float
+    max_reflections: int
+    max_steps: int
+    step_m: float
+    tol: float
+    renormalize: bool
+    record: bool
+    dt_sample: float
+
+
+class Bounds(NamedTuple):
+    """The explicit boundary planes (n_b, 4) ``(m, h)`` (inside: m.x <= h) and their tags (n_b,) int64
+    (BOUNDARY_OPEN / BOUNDARY_REFLECT): :func:`boundary_planes`."""
+
+    planes: np.ndarray
+    tags: np.ndarray
+
+
+class NumRays(NamedTuple):
+    """Per-ray inputs and outputs, row i for ray i: origins, directions (n, 3) m / any non-zero length;
+    start_cells (n,) int64 (mesh media; -1: lost); out_state (n, STATE_SIZE) float64 and out_counts
+    (n, NCOUNT_SIZE) int64 (written; columns constants.STATE_* and COUNT_STATUS .. COUNT_CROSSINGS, NCOUNT_*)."""
+
+    origins: np.ndarray
+    directions: np.ndarray
+    start_cells: np.ndarray
+    out_state: np.ndarray
+    out_counts: np.ndarray
+
+
 @nb.njit(**NJIT_FLAGS)
-def _emit(path_pts, path_t, path_s, base, cap, count, y):
-    if count < cap:
+def _emit(paths, cnt, base, y):
+    """Path sample of state y (x, t, s) into row base + cnt[NCOUNT_SAMPLES] of paths, while there is room."""
+    count = cnt[NCOUNT_SAMPLES]
+    if count < paths.cap:
         k = base + count
-        path_pts[k, 0] = y[0]
-        path_pts[k, 1] = y[1]
-        path_pts[k, 2] = y[2]
-        path_t[k] = y[6]
-        path_s[k] = y[7]
-        return count + 1
-    return count
+        paths.pts[k, 0] = y[0]
+        paths.pts[k, 1] = y[1]
+        paths.pts[k, 2] = y[2]
+        paths.t[k] = y[6]
+        paths.s[k] = y[7]
+        cnt[NCOUNT_SAMPLES] = count + 1
 
 
 @nb.njit(**NJIT_FLAGS)
-def _emit_interior(y0, k0, y1, k1, h, dt_sample, path_pts, path_t, path_s, base, cap, count, ys):
-    """Samples inside a step longer than dt_sample: cubic Hermite in sigma (x, t, s and their
-    sigma-derivatives at both ends), evenly spaced in sigma like the analytic tracer's."""
+def _emit_interior(paths, cnt, base, sw, h, dt_sample):
+    """Samples inside a step sw.y0 -> sw.y1 (length h in sigma) longer than dt_sample: cubic Hermite in
+    sigma (x, t, s and their sigma-derivatives sw.k1, sw.knew at both ends), evenly spaced in sigma like
+    the analytic tracer's (sw.ys is overwritten)."""
+    y0, k0, y1, k1, ys = sw.y0, sw.k1, sw.y1, sw.knew, sw.ys
     n_int = int((y1[6] - y0[6]) / dt_sample)
-    if n_int > 2 * cap:
-        n_int = 2 * cap
+    if n_int > 2 * paths.cap:
+        n_int = 2 * paths.cap
     for j in range(1, n_int + 1):
         u = j / (n_int + 1)
         h00 = (1.0 + 2.0 * u) * (1.0 - u) * (1.0 - u)
@@ -192,8 +234,7 @@ def _emit_interior(y0, k0, y1, k1, h, dt_sample, path_pts, path_t, path_s, base,
         h11 = u * u * (u - 1.0)
         for i in (0, 1, 2, 6, 7):
             ys[i] = h00 * y0[i] + h10 * h * k0[i] + h01 * y1[i] + h11 * h * k1[i]
-        count = _emit(path_pts, path_t, path_s, base, cap, count, ys)
-    return count
+        _emit(paths, cnt, base, ys)
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -221,18 +262,13 @@ def _finite(y):
     return True
 
 
-@nb.njit(**NJIT_FLAGS)
-def _resolve_events(
-    method, media, bplanes, btags, cell, y0, k1, h, max_time, eps_x, eps_t, y1, knew, yerr, work, evp, grz, scratch
-):
-    """Shorten the step y0 -> y1 (length h) to the earliest boundary or time event, by restarts.
-
-    On return y1 is the final end state (on the event's plane / at max_time, or the untouched step).
-    Returns (ok, has_knew, h_end, ev_kind, ev_tag, slide_tag, moved, restarts): ``evp`` holds the
-    event's plane, ``grz`` a grazed plane the ray slid along (slide_tag != 0), ``moved`` whether x was
-    snapped or projected (so f(y1) must be re-evaluated).
-    """
-    kind, tag, f, g0, g1, grz_tag, ok = _detect(y0, y1, bplanes, btags, media, cell, max_time, eps_x, eps_t, evp, grz)
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _land_events(prm, media, bounds, cell, sw, h, eps_x, eps_t, ev, ok):
+    """Land the step sw.y0 -> sw.y1 (length h) on its earliest event ``ev = (kind, tag, g0, g1)`` (plane in
+    sw.evp), by restarts; an earlier crossing of another boundary that the landing reveals re-targets it
+    (at most MAX_RETARGETS times). Returns (ok, has_knew, h_end, ev_kind, ev_tag, moved, restarts)."""
+    kind, tag, g0, g1 = ev
+    y0, y1, evp = sw.y0, sw.y1, sw.evp
     ev_kind = EVENT_NONE
     ev_tag = 0
     h_end = h
@@ -242,135 +278,224 @@ def _resolve_events(
     for _ in range(MAX_RETARGETS + 1):
         if kind == EVENT_NONE or not ok:
             break
-        hk = first_guess(method, kind, evp, y0, y1, h_end, g0, g1, media[9])
-        h_end, ok, has, nr = land(
-            method,
-            media,
-            cell,
-            y0,
-            k1,
-            0.0,
-            min(g0, 0.0),
-            h_end,
-            g1,
-            hk,
-            kind,
-            evp,
-            max_time,
-            eps_t if kind == EVENT_TIME else eps_x,
-            y1,
-            knew,
-            yerr,
-            work,
-        )
+        hk = first_guess(prm.method, kind, evp, y0, y1, h_end, g0, g1, media[9])
+        eps = eps_t if kind == EVENT_TIME else eps_x
+        bracket = (0.0, min(g0, 0.0), h_end, g1)
+        h_end, ok, has, nr = land(prm.method, media, cell, sw, bracket, hk, kind, evp, prm.max_time, eps)
         restarts += nr
         ev_kind = kind
         ev_tag = tag
         if kind == EVENT_TIME:
-            y1[6] = max_time
+            y1[6] = prm.max_time
         else:
             gg = plane_g(evp, y1)
             for i in range(3):
                 y1[i] -= gg * evp[i]
             moved = True
         # an earlier crossing of another boundary revealed by the landing re-targets it
-        kind, tag, f, g0, g1, _, walk_ok = _detect(
-            y0, y1, bplanes, btags, media, cell, max_time, eps_x, eps_t, evp, scratch
+        kind, tag, _frac, g0, g1, _grz_tag, walk_ok = _detect(
+            y0, y1, bounds.planes, bounds.tags, media, cell, prm.max_time, eps_x, eps_t, evp, sw.ys
         )
         ok = ok and walk_ok
+    return ok, has, h_end, ev_kind, ev_tag, moved, restarts
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _leave_grazed(prm, media, cell, sw, h_end, g_end, eps_x, grz_tag, ev_kind, ev_tag):
+    """The step (length h_end, ending g_end > eps_x beyond the plane sw.grz the ray sits on) left a grazed
+    plane: find an interior re-entry by halving and land on it, else take the step and slide along the
+    plane (its end projected onto it). Returns (ok, has_knew, h_end, ev_kind, ev_tag, slide_tag, restarts)."""
+    y0, k1, y1, grz, evp = sw.y0, sw.k1, sw.y1, sw.grz, sw.evp
+    method = prm.method
+    restarts = 0
     slide_tag = 0
-    g_end = plane_g(grz, y1)
+    hk = h_end
+    glo = 0.0
+    found = False
+    for _ in range(MAX_GRAZE_HALVINGS):
+        hk *= 0.5
+        ok, has = advance(method, media, cell, y0, k1, hk, y1, sw.knew, sw.yerr, sw.work)
+        restarts += 1
+        glo = plane_g(grz, y1)
+        if not ok or glo < -eps_x:
+            found = ok
+            break
+    if found:
+        h_guess = hk + (h_end - hk) * (-glo) / (g_end - glo)
+        h_end, ok, has, nr = land(method, media, cell, sw, (hk, glo, h_end, g_end), h_guess, EVENT_PLANE, grz,
+                                  prm.max_time, eps_x)  # fmt: skip
+        ev_kind = EVENT_PLANE
+        ev_tag = grz_tag
+        for i in range(4):
+            evp[i] = grz[i]
+    else:
+        ok, has = advance(method, media, cell, y0, k1, h_end, y1, sw.knew, sw.yerr, sw.work)
+        nr = 1
+        slide_tag = grz_tag
+        if ev_kind == EVENT_TIME:  # re-apply the landing's snap to the re-taken step
+            y1[6] = prm.max_time
+        elif ev_kind == EVENT_PLANE:
+            gg = plane_g(evp, y1)
+            for i in range(3):
+                y1[i] -= gg * evp[i]
+    restarts += nr
+    gg = plane_g(grz, y1)
+    for i in range(3):
+        y1[i] -= gg * grz[i]
+    return ok, has, h_end, ev_kind, ev_tag, slide_tag, restarts
+
+
+@nb.njit(**NJIT_FLAGS)
+def _resolve_events(prm, media, bounds, cell, sw, h, eps_x, eps_t):
+    """Shorten the step sw.y0 -> sw.y1 (length h) to the earliest boundary or time event, by restarts.
+
+    On return sw.y1 is the final end state (on the event's plane / at max_time, or the untouched step).
+    Returns (ok, has_knew, h_end, ev_kind, ev_tag, slide_tag, moved, restarts): ``sw.evp`` holds the
+    event's plane, ``sw.grz`` a grazed plane the ray slid along (slide_tag != 0), ``moved`` whether x was
+    snapped or projected (so f(y1) must be re-evaluated).
+    """
+    kind, tag, _, g0, g1, grz_tag, ok = _detect(
+        sw.y0, sw.y1, bounds.planes, bounds.tags, media, cell, prm.max_time, eps_x, eps_t, sw.evp, sw.grz
+    )
+    ok, has, h_end, ev_kind, ev_tag, moved, restarts = _land_events(
+        prm, media, bounds, cell, sw, h, eps_x, eps_t, (kind, tag, g0, g1), ok
+    )
+    slide_tag = 0
+    g_end = plane_g(sw.grz, sw.y1)
     if ok and grz_tag != 0 and g_end > eps_x:
-        # the ray left a plane it sits on: find an interior re-entry by halving, else slide along it
-        hk = h_end
-        glo = 0.0
-        found = False
-        for _ in range(MAX_GRAZE_HALVINGS):
-            hk *= 0.5
-            ok, has = advance(method, media, cell, y0, k1, hk, y1, knew, yerr, work)
-            restarts += 1
-            glo = plane_g(grz, y1)
-            if not ok or glo < -eps_x:
-                found = ok
-                break
-        if found:
-            h_end, ok, has, nr = land(
-                method,
-                media,
-                cell,
-                y0,
-                k1,
-                hk,
-                glo,
-                h_end,
-                g_end,
-                hk + (h_end - hk) * (-glo) / (g_end - glo),
-                EVENT_PLANE,
-                grz,
-                max_time,
-                eps_x,
-                y1,
-                knew,
-                yerr,
-                work,
-            )
-            ev_kind = EVENT_PLANE
-            ev_tag = grz_tag
-            for i in range(4):
-                evp[i] = grz[i]
-        else:
-            ok, has = advance(method, media, cell, y0, k1, h_end, y1, knew, yerr, work)
-            nr = 1
-            slide_tag = grz_tag
-            if ev_kind == EVENT_TIME:  # re-apply the landing's snap to the re-taken step
-                y1[6] = max_time
-            elif ev_kind == EVENT_PLANE:
-                gg = plane_g(evp, y1)
-                for i in range(3):
-                    y1[i] -= gg * evp[i]
+        ok, has, h_end, ev_kind, ev_tag, slide_tag, nr = _leave_grazed(
+            prm, media, cell, sw, h_end, g_end, eps_x, grz_tag, ev_kind, ev_tag
+        )
         restarts += nr
-        gg = plane_g(grz, y1)
-        for i in range(3):
-            y1[i] -= gg * grz[i]
         moved = True
     return ok, has, h_end, ev_kind, ev_tag, slide_tag, moved, restarts
 
 
-@nb.njit(**NJIT_FLAGS)
-def trace_one(
-    method,
-    media,
-    bplanes,
-    btags,
-    x_start,
-    d_start,
-    cell_start,
-    max_time,
-    max_reflections,
-    max_steps,
-    step_m,
-    tol,
-    renormalize,
-    record,
-    dt_sample,
-    path_pts,
-    path_t,
-    path_s,
-    base,
-    cap,
-    out_state,
-    out_counts,
-):
-    """Integrate one ray. out_state (STATE_SIZE,): columns constants.STATE_* (x, d, time_s, length_m).
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _launch(media, bounds, sw, cnt, x_start, d_start, cell):
+    """Initial state y0 = (x, n d / |d|, 0, 0) and f(y0) into sw.k1 (one evaluation counted in cnt).
 
-    out_counts (NCOUNT_SIZE,): status, reflections, cell crossings (constants.COUNT_STATUS, _REFLECTIONS,
-    _CROSSINGS, shared with the analytic tracer), then NCOUNT_STEPS (accepted steps), NCOUNT_RESTARTS,
-    NCOUNT_REJECTED (rejected steps), NCOUNT_EVALS (right-hand-side evaluations), NCOUNT_SAMPLES (path samples).
+    Returns (status, n0, |d|): LOST when n is not positive / finite there, d is zero, f fails or the
+    origin lies outside a boundary plane.
     """
-    # Small shared inputs are copied per ray: every call that passes an array touches its reference
-    # count (an atomic add), and two threads hitting the same shared counters serialise each other.
-    bplanes = bplanes.copy()
-    btags = btags.copy()
+    y0 = sw.y0
+    nrm = math.sqrt(d_start[0] ** 2 + d_start[1] ** 2 + d_start[2] ** 2)
+    for i in range(3):
+        y0[i] = x_start[i]
+    n0 = math.nan
+    if media[0] != MEDIA_MESH or cell >= 0:
+        n0 = media_n(media, cell, y0, sw.ys)
+    if not (n0 > 0.0 and math.isfinite(n0) and nrm > 0.0):
+        return STATUS_LOST, n0, nrm
+    status = STATUS_RUNNING
+    for i in range(3):
+        y0[3 + i] = n0 * d_start[i] / nrm
+    eps0 = LAND_REL * (1.0 + max(abs(y0[0]), abs(y0[1]), abs(y0[2])))
+    for j in range(bounds.planes.shape[0]):
+        if plane_g(bounds.planes[j], y0) > eps0:
+            status = STATUS_LOST  # origin outside the domain
+    if not rhs(media, cell, y0, sw.k1):
+        status = STATUS_LOST
+    cnt[NCOUNT_EVALS] += 1
+    return status, n0, nrm
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _apply_events(prm, sw, cnt, ev_kind, ev_tag, slide_tag, eps_t):
+    """The accepted step's events at sw.y0: time limit, exit through an open plane, reflection (counted in
+    cnt), a slide along a grazed plane (an open one exits, a reflecting one reflects the outward part of p).
+    Returns the status."""
+    y0, k1, evp, grz = sw.y0, sw.k1, sw.evp, sw.grz
+    status = STATUS_RUNNING
+    reflections = cnt[COUNT_REFLECTIONS]
+    if ev_kind == EVENT_TIME or y0[6] >= prm.max_time - eps_t:
+        y0[6] = prm.max_time
+        status = STATUS_TIME_LIMIT
+    elif ev_kind == EVENT_PLANE and ev_tag == BOUNDARY_OPEN:
+        status = STATUS_EXITED
+    elif ev_kind == EVENT_PLANE:
+        status, reflections = _reflect(evp, y0, k1, reflections, prm.max_reflections)
+    if status == STATUS_RUNNING and slide_tag == BOUNDARY_OPEN:
+        status = STATUS_EXITED
+    elif status == STATUS_RUNNING and slide_tag == BOUNDARY_REFLECT:
+        if grz[0] * y0[3] + grz[1] * y0[4] + grz[2] * y0[5] > 0.0:
+            status, reflections = _reflect(grz, y0, k1, reflections, prm.max_reflections)
+    cnt[COUNT_REFLECTIONS] = reflections
+    return status
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _step(media, bounds, prm, paths, sw, cnt, base, cell, h_next, t_last, eps_t):
+    """One accepted step from sw.y0 (trial length h_next) with its events, path samples (ray's slice from
+    row ``base``) and the mesh walk; counters in cnt. Returns (status, cell, h_next, t_last)."""
+    y0, y1, k1, knew = sw.y0, sw.y1, sw.k1, sw.knew
+    n_per = EVALS_PER_STEP[prm.method]
+    ok, has, h, h_next, rej = controlled_step(
+        prm.method, media, cell, y0, k1, h_next, prm.step_m, prm.tol, y1, knew, sw.yerr, sw.work
+    )
+    cnt[NCOUNT_REJECTED] += rej
+    cnt[NCOUNT_EVALS] += (rej + 1) * n_per
+    if not ok:
+        return STATUS_LOST, cell, h_next, t_last
+    cnt[NCOUNT_STEPS] += 1
+    eps_x = LAND_REL * (1.0 + max(abs(y1[0]), abs(y1[1]), abs(y1[2])))
+    # fast path: nothing crossed (the common step) -> no event machinery (mesh faces need the walk)
+    crossed = media[0] == MEDIA_MESH or y1[6] - prm.max_time > eps_t
+    bplanes = bounds.planes
+    for j in range(bplanes.shape[0]):
+        g1 = bplanes[j, 0] * y1[0] + bplanes[j, 1] * y1[1] + bplanes[j, 2] * y1[2] - bplanes[j, 3]
+        crossed = crossed or g1 > eps_x
+    ev_kind = EVENT_NONE
+    ev_tag = 0
+    slide_tag = 0
+    moved = False
+    h_end = h
+    if crossed:
+        ok, has2, h_end, ev_kind, ev_tag, slide_tag, moved, nr = _resolve_events(
+            prm, media, bounds, cell, sw, h, eps_x, eps_t
+        )
+        cnt[NCOUNT_RESTARTS] += nr
+        cnt[NCOUNT_EVALS] += nr * n_per
+        if nr > 0:
+            has = has2
+    if not (ok and _finite(y1)):
+        return STATUS_LOST, cell, h_next, t_last
+    # ---- accept: f(y1), path samples, cell, then the events ----
+    if moved or not has:
+        if not rhs(media, cell, y1, knew):
+            return STATUS_LOST, cell, h_next, t_last
+        cnt[NCOUNT_EVALS] += 1
+    if prm.record and y1[6] - y0[6] > prm.dt_sample:
+        _emit_interior(paths, cnt, base, sw, h_end, prm.dt_sample)
+    for i in range(NY):
+        k1[i] = knew[i]
+        y0[i] = y1[i]
+    if media[0] == MEDIA_MESH:
+        cell, face, mv = walk(media[3], media[4], cell, y0, eps_x)
+        cnt[COUNT_CROSSINGS] += mv
+        if face == WALK_FAILED:
+            return STATUS_LOST, cell, h_next, t_last
+    if prm.record and y0[6] - t_last >= prm.dt_sample:
+        _emit(paths, cnt, base, y0)
+        t_last = y0[6]
+    refl_before = cnt[COUNT_REFLECTIONS]
+    status = _apply_events(prm, sw, cnt, ev_kind, ev_tag, slide_tag, eps_t)
+    if prm.record and cnt[COUNT_REFLECTIONS] > refl_before and y0[6] > t_last:
+        _emit(paths, cnt, base, y0)
+        t_last = y0[6]
+    if prm.renormalize and status == STATUS_RUNNING:
+        pn = math.sqrt(y0[3] ** 2 + y0[4] ** 2 + y0[5] ** 2)
+        for i in range(3):
+            y0[3 + i] *= k1[7] / pn
+            k1[i] = y0[3 + i]
+    return status, cell, h_next, t_last
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _own_inputs(media, bounds):
+    """Per-ray copies of the small shared inputs: every call that passes an array touches its reference
+    count (an atomic add), and two threads hitting the same shared counters serialise each other."""
+    bounds = Bounds(bounds.planes.copy(), bounds.tags.copy())
     if media[0] != MEDIA_MESH:  # exact media: the parameters and the 1-element mesh placeholders
         media = (
             media[0],
@@ -384,210 +509,60 @@ def trace_one(
             media[8],
             media[9],
         )
-    y0 = np.zeros(NY)
-    y1 = np.zeros(NY)
-    k1 = np.zeros(NY)
-    knew = np.zeros(NY)
-    yerr = np.zeros(NY)
-    ys = np.zeros(NY)
-    work = np.zeros((WORK_ROWS, NY))
-    evp = np.zeros(4)
-    grz = np.zeros(4)
-    status = STATUS_RUNNING
-    reflections = 0
-    crossings = 0
-    steps = 0
-    restarts = 0
-    rejected = 0
-    evals = 0
-    count = 0
-    cell = cell_start
-    nrm = math.sqrt(d_start[0] ** 2 + d_start[1] ** 2 + d_start[2] ** 2)
-    for i in range(3):
-        y0[i] = x_start[i]
-    eps_t = TIME_LAND_REL * max(1.0, max_time)
-    n0 = math.nan
-    if media[0] != MEDIA_MESH or cell >= 0:
-        n0 = media_n(media, cell, y0, ys)
-    if not (n0 > 0.0 and math.isfinite(n0) and nrm > 0.0):
-        status = STATUS_LOST
-    else:
-        for i in range(3):
-            y0[3 + i] = n0 * d_start[i] / nrm
-        eps0 = LAND_REL * (1.0 + max(abs(y0[0]), abs(y0[1]), abs(y0[2])))
-        for j in range(bplanes.shape[0]):
-            if plane_g(bplanes[j], y0) > eps0:
-                status = STATUS_LOST  # origin outside the domain
-        if not rhs(media, cell, y0, k1):
-            status = STATUS_LOST
-        evals += 1
-    if record:
-        count = _emit(path_pts, path_t, path_s, base, cap, count, y0)
+    return media, bounds
+
+
+@nb.njit(**NJIT_FLAGS)
+def trace_one(media, bounds, prm, paths, rays, i):
+    """Integrate ray i of ``rays`` (NumRays) from its start to its end state.
+
+    media : the integrators.make_media tuple; bounds : Bounds; prm : NumParams; paths : traverse.PathBuffers
+    (ray i's slice from row i * paths.cap). Writes rays.out_state[i] (columns constants.STATE_*: x, d,
+    time_s, length_m) and rays.out_counts[i] (NCOUNT_SIZE,): status, reflections, cell crossings
+    (constants.COUNT_STATUS, _REFLECTIONS, _CROSSINGS, shared with the analytic tracer), then NCOUNT_STEPS
+    (accepted steps), NCOUNT_RESTARTS, NCOUNT_REJECTED (rejected steps), NCOUNT_EVALS (right-hand-side
+    evaluations), NCOUNT_SAMPLES (path samples).
+    """
+    media, bounds = _own_inputs(media, bounds)
+    sw = new_step_work()
+    y0 = sw.y0
+    cnt = rays.out_counts[i]
+    for k in range(cnt.shape[0]):
+        cnt[k] = 0
+    base = i * paths.cap
+    cell = rays.start_cells[i]
+    d_start = rays.directions[i]
+    eps_t = TIME_LAND_REL * max(1.0, prm.max_time)
+    status, n0, nrm = _launch(media, bounds, sw, cnt, rays.origins[i], d_start, cell)
+    if prm.record:
+        _emit(paths, cnt, base, y0)
     t_last = 0.0
-    h_next = step_m / n0 if n0 > 0.0 else 0.0
-    n_per = EVALS_PER_STEP[method]
+    h_next = prm.step_m / n0 if n0 > 0.0 else 0.0
     while status == STATUS_RUNNING:
-        if steps >= max_steps:
+        if cnt[NCOUNT_STEPS] >= prm.max_steps:
             status = STATUS_STEP_LIMIT
             break
-        ok, has, h, h_next, rej = controlled_step(
-            method, media, cell, y0, k1, h_next, step_m, tol, y1, knew, yerr, work
-        )
-        rejected += rej
-        evals += (rej + 1) * n_per
-        if not ok:
-            status = STATUS_LOST
-            break
-        steps += 1
-        eps_x = LAND_REL * (1.0 + max(abs(y1[0]), abs(y1[1]), abs(y1[2])))
-        # fast path: nothing crossed (the common step) -> no event machinery (mesh faces need the walk)
-        crossed = media[0] == MEDIA_MESH or y1[6] - max_time > eps_t
-        for j in range(bplanes.shape[0]):
-            g1 = bplanes[j, 0] * y1[0] + bplanes[j, 1] * y1[1] + bplanes[j, 2] * y1[2] - bplanes[j, 3]
-            crossed = crossed or g1 > eps_x
-        ev_kind = EVENT_NONE
-        ev_tag = 0
-        slide_tag = 0
-        moved = False
-        h_end = h
-        if crossed:
-            ok, has2, h_end, ev_kind, ev_tag, slide_tag, moved, nr = _resolve_events(
-                method,
-                media,
-                bplanes,
-                btags,
-                cell,
-                y0,
-                k1,
-                h,
-                max_time,
-                eps_x,
-                eps_t,
-                y1,
-                knew,
-                yerr,
-                work,
-                evp,
-                grz,
-                ys,
-            )
-            restarts += nr
-            evals += nr * n_per
-            if nr > 0:
-                has = has2
-        if not (ok and _finite(y1)):
-            status = STATUS_LOST
-            break
-        # ---- accept: f(y1), path samples, cell, then the events ----
-        if moved or not has:
-            if not rhs(media, cell, y1, knew):
-                status = STATUS_LOST
-                break
-            evals += 1
-        if record and y1[6] - y0[6] > dt_sample:
-            count = _emit_interior(y0, k1, y1, knew, h_end, dt_sample, path_pts, path_t, path_s, base, cap, count, ys)
-        for i in range(NY):
-            k1[i] = knew[i]
-            y0[i] = y1[i]
-        if media[0] == MEDIA_MESH:
-            cell, face, mv = walk(media[3], media[4], cell, y0, eps_x)
-            crossings += mv
-            if face == WALK_FAILED:
-                status = STATUS_LOST
-                break
-        if record and y0[6] - t_last >= dt_sample:
-            count = _emit(path_pts, path_t, path_s, base, cap, count, y0)
-            t_last = y0[6]
-        refl_before = reflections
-        if ev_kind == EVENT_TIME or y0[6] >= max_time - eps_t:
-            y0[6] = max_time
-            status = STATUS_TIME_LIMIT
-        elif ev_kind == EVENT_PLANE and ev_tag == BOUNDARY_OPEN:
-            status = STATUS_EXITED
-        elif ev_kind == EVENT_PLANE:
-            status, reflections = _reflect(evp, y0, k1, reflections, max_reflections)
-        if status == STATUS_RUNNING and slide_tag == BOUNDARY_OPEN:
-            status = STATUS_EXITED
-        elif status == STATUS_RUNNING and slide_tag == BOUNDARY_REFLECT:
-            if grz[0] * y0[3] + grz[1] * y0[4] + grz[2] * y0[5] > 0.0:
-                status, reflections = _reflect(grz, y0, k1, reflections, max_reflections)
-        if record and reflections > refl_before and y0[6] > t_last:
-            count = _emit(path_pts, path_t, path_s, base, cap, count, y0)
-            t_last = y0[6]
-        if renormalize and status == STATUS_RUNNING:
-            pn = math.sqrt(y0[3] ** 2 + y0[4] ** 2 + y0[5] ** 2)
-            for i in range(3):
-                y0[3 + i] *= k1[7] / pn
-                k1[i] = y0[3 + i]
-    if record and (count == 0 or y0[6] > t_last):
-        count = _emit(path_pts, path_t, path_s, base, cap, count, y0)
+        status, cell, h_next, t_last = _step(media, bounds, prm, paths, sw, cnt, base, cell, h_next, t_last, eps_t)
+    if prm.record and (cnt[NCOUNT_SAMPLES] == 0 or y0[6] > t_last):
+        _emit(paths, cnt, base, y0)
+    out_state = rays.out_state[i]
     pn = math.sqrt(y0[3] ** 2 + y0[4] ** 2 + y0[5] ** 2)
-    for i in range(3):
-        out_state[STATE_X + i] = y0[i]
-        out_state[STATE_D + i] = y0[3 + i] / pn if pn > 0.0 else d_start[i] / nrm
+    for k in range(3):
+        out_state[STATE_X + k] = y0[k]
+        out_state[STATE_D + k] = y0[3 + k] / pn if pn > 0.0 else d_start[k] / nrm
     out_state[STATE_TIME] = y0[6]
     out_state[STATE_LENGTH] = y0[7]
-    out_counts[COUNT_STATUS] = status
-    out_counts[COUNT_REFLECTIONS] = reflections
-    out_counts[COUNT_CROSSINGS] = crossings
-    out_counts[NCOUNT_STEPS] = steps
-    out_counts[NCOUNT_RESTARTS] = restarts
-    out_counts[NCOUNT_REJECTED] = rejected
-    out_counts[NCOUNT_EVALS] = evals
-    out_counts[NCOUNT_SAMPLES] = count
+    cnt[COUNT_STATUS] = status
 
 
 @nb.njit(**PARALLEL_FLAGS)
-def trace_rays_numerical(
-    method,
-    media,
-    bplanes,
-    btags,
-    origins,
-    directions,
-    start_cells,
-    max_time,
-    max_reflections,
-    max_steps,
-    step_m,
-    tol,
-    renormalize,
-    record,
-    dt_sample,
-    path_cap,
-    path_pts,
-    path_t,
-    path_s,
-    out_state,
-    out_counts,
-):
-    """All rays in parallel (prange); ray i owns out_state[i], out_counts[i] and the path slice
-    ``[i * path_cap, (i + 1) * path_cap)``: no shared writes, deterministic results."""
-    for i in nb.prange(origins.shape[0]):
-        trace_one(
-            method,
-            media,
-            bplanes,
-            btags,
-            origins[i],
-            directions[i],
-            start_cells[i],
-            max_time,
-            max_reflections,
-            max_steps,
-            step_m,
-            tol,
-            renormalize,
-            record,
-            dt_sample,
-            path_pts,
-            path_t,
-            path_s,
-            i * path_cap,
-            path_cap,
-            out_state[i],
-            out_counts[i],
-        )
+def trace_rays_numerical(media, bounds, prm, paths, rays):
+    """All rays in parallel (prange); ray i owns rays.out_state[i], rays.out_counts[i] and the path slice
+    ``[i * paths.cap, (i + 1) * paths.cap)``: no shared writes, deterministic results. media : the
+    integrators.make_media tuple; bounds : Bounds; prm : NumParams; paths : traverse.PathBuffers;
+    rays : NumRays."""
+    for i in nb.prange(rays.origins.shape[0]):
+        trace_one(media, bounds, prm, paths, rays, i)
 
 
 def boundary_planes(
@@ -666,45 +641,18 @@ def trace_numerical(
     if method not in METHOD_CODES:
         raise ValueError(f"unknown method {method!r}; expected one of {sorted(METHOD_CODES)}")
     med = make_media(media, exact_spec=exact_spec, mesh=mesh, quantity=quantity, c_ref=float(c_ref))
-    origins = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3)
-    directions = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
+    origins, directions, start_cells = _ray_inputs(media, mesh, origins, directions, start_cells)
+    _check_limits(max_time_s, step_m, tolerance, max_reflections, max_steps, path_samples)
     n = origins.shape[0]
-    if directions.shape[0] != n:
-        raise ValueError("origins and directions must have the same length")
-    if start_cells is None:
-        if media == "mesh":
-            uniq, inv = np.unique(origins, axis=0, return_inverse=True)
-            start_cells = locate_points(mesh, uniq)[inv.reshape(-1)]
-        else:
-            start_cells = np.zeros(n, dtype=np.int64)
-    start_cells = np.ascontiguousarray(start_cells, dtype=np.int64).reshape(-1)
-    if start_cells.shape[0] != n:
-        raise ValueError("start_cells must have one entry per ray")
-    if not (max_time_s > 0.0 and math.isfinite(max_time_s)):
-        raise ValueError("max_time_s must be positive and finite")
-    if not (step_m > 0.0 and math.isfinite(step_m)):
-        raise ValueError("step_m must be positive and finite")
-    if not (tolerance > 0.0):
-        raise ValueError("tolerance must be positive")
-    if max_reflections < 0 or max_steps < 1 or path_samples < 0:
-        raise ValueError("max_reflections and path_samples must be >= 0, max_steps >= 1")
     bplanes, btags = boundary_planes(domain_min, domain_max, float(ground_z), top)
     record = path_samples > 0
     cap = path_capacity(path_samples, max_reflections) if record else 1
     n_slots = n * cap if record else 1
-    path_pts = np.zeros((n_slots, 3))
-    path_t = np.zeros(n_slots)
-    path_s = np.zeros(n_slots)
-    out_state = np.zeros((n, STATE_SIZE))
+    paths = PathBuffers(np.zeros((n_slots, 3)), np.zeros(n_slots), np.zeros(n_slots), cap)
     out_counts = np.zeros((n, NCOUNT_SIZE), dtype=np.int64)
-    trace_rays_numerical(
+    rays = NumRays(origins, directions, start_cells, np.zeros((n, STATE_SIZE)), out_counts)
+    prm = NumParams(
         METHOD_CODES[method],
-        med,
-        bplanes,
-        btags,
-        origins,
-        directions,
-        start_cells,
         float(max_time_s),
         int(max_reflections),
         int(max_steps),
@@ -713,24 +661,57 @@ def trace_numerical(
         bool(renormalize),
         record,
         float(max_time_s) / max(path_samples, 1),
-        cap,
-        path_pts,
-        path_t,
-        path_s,
-        out_state,
-        out_counts,
     )
-    paths = gather_paths(path_pts, path_t, path_s, out_counts[:, NCOUNT_SAMPLES], cap) if record else None
+    trace_rays_numerical(med, Bounds(bplanes, btags), prm, paths, rays)
+    gathered = gather_paths(paths.pts, paths.t, paths.s, out_counts[:, NCOUNT_SAMPLES], cap) if record else None
     if stats is not None:
         stats["rejected"] = out_counts[:, NCOUNT_REJECTED].copy()
         stats["evaluations"] = out_counts[:, NCOUNT_EVALS].copy()
     result = kernel_trace_result(
-        out_state,
+        rays.out_state,
         status=out_counts[:, COUNT_STATUS],
         reflections=out_counts[:, COUNT_REFLECTIONS],
         crossings=out_counts[:, COUNT_CROSSINGS],
         nudges=np.zeros(n, dtype=np.int64),
         steps=out_counts[:, NCOUNT_STEPS],
-        paths=paths,
+        paths=gathered,
     )
     return result, out_counts[:, NCOUNT_RESTARTS].copy()
+
+
+def _ray_inputs(
+    media: str, mesh: CellMesh | None, origins: np.ndarray, directions: np.ndarray, start_cells: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """origins, directions as C-contiguous (n, 3) float64 and start_cells (n,) int64 (mesh media: located
+    when None; exact media: zeros); ValueError when the lengths differ."""
+    origins = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3)
+    directions = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
+    n = origins.shape[0]
+    if directions.shape[0] != n:
+        raise ValueError("origins and directions must have the same length")
+    if start_cells is None:
+        if media == "mesh":
+            assert mesh is not None  # make_media refused media="mesh" without a mesh
+            uniq, inv = np.unique(origins, axis=0, return_inverse=True)
+            start_cells = locate_points(mesh, uniq)[inv.reshape(-1)]
+        else:
+            start_cells = np.zeros(n, dtype=np.int64)
+    start_cells = np.ascontiguousarray(start_cells, dtype=np.int64).reshape(-1)
+    if start_cells.shape[0] != n:
+        raise ValueError("start_cells must have one entry per ray")
+    return origins, directions, start_cells
+
+
+def _check_limits(
+    max_time_s: float, step_m: float, tolerance: float, max_reflections: int, max_steps: int, path_samples: int
+) -> None:
+    """ValueError unless the time limit and step are positive and finite, the tolerance positive and the
+    counts in range."""
+    if not (max_time_s > 0.0 and math.isfinite(max_time_s)):
+        raise ValueError("max_time_s must be positive and finite")
+    if not (step_m > 0.0 and math.isfinite(step_m)):
+        raise ValueError("step_m must be positive and finite")
+    if not (tolerance > 0.0):
+        raise ValueError("tolerance must be positive")
+    if max_reflections < 0 or max_steps < 1 or path_samples < 0:
+        raise ValueError("max_reflections and path_samples must be >= 0, max_steps >= 1")

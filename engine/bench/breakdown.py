@@ -21,7 +21,7 @@ total is measured.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, NamedTuple
 
 import numba as nb
 import numpy as np
@@ -71,109 +71,125 @@ def _media_at(media_ref, ref_point, gradient, cell, x):
     )
 
 
+class Entries(NamedTuple):
+    """Cell-entry records, flattened: cell (E,) int64, entry face (E,) int64 (-1: none), entry point x
+    (E, 3) m, unit tangent d (E, 3)."""
+
+    cell: np.ndarray
+    face: np.ndarray
+    x: np.ndarray
+    d: np.ndarray
+
+
+class WalkParams(NamedTuple):
+    """The recording walk's limits: curve (CURVE_* code), c_ref (m/s), max_time (s), max_reflections, cap
+    (entries stored per ray at most)."""
+
+    curve: int
+    c_ref: float
+    max_time: float
+    max_reflections: int
+    cap: int
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _mirror(planes, cell, face, d):
+    """d (3,) reflected specularly off face ``face`` of ``cell`` and renormalised, in place."""
+    dot = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
+    nrm = 0.0
+    for j in range(3):
+        d[j] -= 2.0 * dot * planes[cell, face, j]
+        nrm += d[j] * d[j]
+    for j in range(3):
+        d[j] /= math.sqrt(nrm)
+
+
+@nb.njit(**NJIT_FLAGS)
+def _record_ray(mesh, wp, x, d, cell, ent, first):
+    """Walk one ray from x, d (3,) in ``cell`` (x, d overwritten), storing each cell entry into ``ent``
+    from slot ``first`` on (at most wp.cap); stops where it finds no exit, at max_time, at an open face or
+    past max_reflections. Returns the number of entries stored. (Called, not inlined: inlined into the
+    prange loop of _record the stores into ent.d came out as zeros.)"""
+    planes, neighbours, gradient, size = mesh.planes, mesh.neighbours, mesh.gradient, mesh.size
+    xn = np.empty(3)
+    dn = np.empty(3)
+    cs = np.zeros(curves.CS_SIZE)
+    entry = -1
+    t = 0.0
+    refl = 0
+    k = 0
+    while cell >= 0 and k < wp.cap:
+        e = first + k
+        ent.cell[e] = cell
+        ent.face[e] = entry
+        for j in range(3):
+            ent.x[e, j] = x[j]
+            ent.d[e, j] = d[j]
+        k += 1
+        m0 = _media_at(mesh.media_ref, mesh.ref_point, gradient, cell, x)
+        if not curves.setup(wp.curve, m0, gradient[cell], d, cs):
+            break
+        face, param = curves.find_exit(
+            wp.curve, cs, x, d, planes[cell], neighbours[cell], entry, ON_FACE_REL * size[cell], size[cell]
+        )
+        if face < 0:
+            break
+        dt = curves.time_at(wp.curve, cs, param, wp.c_ref)
+        if t + dt >= wp.max_time:
+            break
+        curves.evaluate(wp.curve, cs, x, d, param, xn, dn)
+        t += dt
+        for j in range(3):
+            x[j] = xn[j]
+            d[j] = dn[j]
+        nxt = neighbours[cell, face]
+        if nxt >= 0:
+            entry = mesh.neighbour_face[cell, face]
+            cell = nxt
+        elif nxt == BOUNDARY_REFLECT and refl < wp.max_reflections:
+            _mirror(planes, cell, face, d)
+            refl += 1
+            entry = face
+        else:
+            break
+    return k
+
+
 @nb.njit(**PARALLEL_FLAGS)
-def _record(
-    planes,
-    neighbours,
-    neighbour_face,
-    media_ref,
-    ref_point,
-    gradient,
-    size,
-    curve,
-    c_ref,
-    origins,
-    directions,
-    start_cells,
-    max_time,
-    max_reflections,
-    cap,
-    ent_cell,
-    ent_face,
-    ent_x,
-    ent_d,
-    counts,
-):
-    """Entry states of every ray's cells, ray i in slots [i cap, (i + 1) cap); counts[i] = entries stored."""
+def _record(mesh, wp, origins, directions, start_cells, ent, counts):
+    """Entry states of every ray's cells (mesh: CellMesh; wp: WalkParams), ray i in slots
+    [i cap, (i + 1) cap) of ``ent`` (Entries); counts[i] = entries stored."""
     for i in nb.prange(origins.shape[0]):
         x = origins[i].copy()
         d = directions[i] / math.sqrt(directions[i, 0] ** 2 + directions[i, 1] ** 2 + directions[i, 2] ** 2)
-        xn = np.empty(3)
-        dn = np.empty(3)
-        cs = np.zeros(curves.CS_SIZE)
-        cell = start_cells[i]
-        entry = -1
-        t = 0.0
-        refl = 0
-        k = 0
-        while cell >= 0 and k < cap:
-            base = i * cap + k
-            ent_cell[base] = cell
-            ent_face[base] = entry
-            for j in range(3):
-                ent_x[base, j] = x[j]
-                ent_d[base, j] = d[j]
-            k += 1
-            m0 = _media_at(media_ref, ref_point, gradient, cell, x)
-            if not curves.setup(curve, m0, gradient[cell], d, cs):
-                break
-            face, param = curves.find_exit(
-                curve, cs, x, d, planes[cell], neighbours[cell], entry, ON_FACE_REL * size[cell], size[cell]
-            )
-            if face < 0:
-                break
-            dt = curves.time_at(curve, cs, param, c_ref)
-            if t + dt >= max_time:
-                break
-            curves.evaluate(curve, cs, x, d, param, xn, dn)
-            t += dt
-            for j in range(3):
-                x[j] = xn[j]
-                d[j] = dn[j]
-            nxt = neighbours[cell, face]
-            if nxt >= 0:
-                entry = neighbour_face[cell, face]
-                cell = nxt
-            elif nxt == BOUNDARY_REFLECT and refl < max_reflections:
-                dot = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
-                nrm = 0.0
-                for j in range(3):
-                    d[j] -= 2.0 * dot * planes[cell, face, j]
-                    nrm += d[j] * d[j]
-                for j in range(3):
-                    d[j] /= math.sqrt(nrm)
-                refl += 1
-                entry = face
-            else:
-                break
-        counts[i] = k
+        counts[i] = _record_ray(mesh, wp, x, d, start_cells[i], ent, i * wp.cap)
 
 
 @nb.njit(**PARALLEL_FLAGS)
-def _replay(
-    phase, planes, neighbours, media_ref, ref_point, gradient, size, curve, c_ref, ent_cell, ent_face, ent_x, ent_d, out
-):
-    """phase -1: read the entry only; 0: + media and setup; 1: + find_exit; 2: + time_at and evaluate.
-    out[e] keeps each result alive (no dead-code elimination)."""
-    n = ent_cell.shape[0]
+def _replay(phase, mesh, curve, c_ref, ent, out):
+    """Replay the entries ``ent`` (Entries) on ``mesh`` (CellMesh) up to ``phase``: -1 reads the entry only;
+    0: + media and setup; 1: + find_exit; 2: + time_at and evaluate. out[e] keeps each result alive (no
+    dead-code elimination)."""
+    planes, neighbours, gradient, size = mesh.planes, mesh.neighbours, mesh.gradient, mesh.size
+    n = ent.cell.shape[0]
     n_chunks = 64
     for ch in nb.prange(n_chunks):
         cs = np.zeros(curves.CS_SIZE)
         xn = np.empty(3)
         dn = np.empty(3)
         for e in range(ch * n // n_chunks, (ch + 1) * n // n_chunks):
-            cell = ent_cell[e]
-            x = ent_x[e]
-            d = ent_d[e]
+            cell = ent.cell[e]
+            x = ent.x[e]
+            d = ent.d[e]
             if phase < 0:
-                out[e] = x[0] + d[2] + cell + ent_face[e]
+                out[e] = x[0] + d[2] + cell + ent.face[e]
                 continue
-            m0 = _media_at(media_ref, ref_point, gradient, cell, x)
+            m0 = _media_at(mesh.media_ref, mesh.ref_point, gradient, cell, x)
             ok = curves.setup(curve, m0, gradient[cell], d, cs)
             acc = cs[0] + cs[3] + cs[6]
             if ok and phase >= 1:
                 face, param = curves.find_exit(
-                    curve, cs, x, d, planes[cell], neighbours[cell], ent_face[e], ON_FACE_REL * size[cell], size[cell]
+                    curve, cs, x, d, planes[cell], neighbours[cell], ent.face[e], ON_FACE_REL * size[cell], size[cell]
                 )
                 if face >= 0:
                     acc += param + face
@@ -198,35 +214,21 @@ def record_entries(
     """Cell-entry states of the rays, flattened in ray order: cell (E,) int64, entry face (E,) int64,
     entry point (E, 3) m, unit tangent (E, 3). At most ``cap`` entries per ray."""
     n = len(origins)
-    ent_cell = np.zeros(n * cap, dtype=np.int64)
-    ent_face = np.zeros(n * cap, dtype=np.int64)
-    ent_x = np.zeros((n * cap, 3))
-    ent_d = np.zeros((n * cap, 3))
+    ent = Entries(np.zeros(n * cap, dtype=np.int64), np.zeros(n * cap, dtype=np.int64), np.zeros((n * cap, 3)),
+                  np.zeros((n * cap, 3)))  # fmt: skip
     counts = np.zeros(n, dtype=np.int64)
+    wp = WalkParams(CURVE_CODES[curve], float(c_ref), float(max_time_s), int(max_reflections), int(cap))
     _record(
-        mesh.planes,
-        mesh.neighbours,
-        mesh.neighbour_face,
-        mesh.media_ref,
-        mesh.ref_point,
-        mesh.gradient,
-        mesh.size,
-        CURVE_CODES[curve],
-        float(c_ref),
+        mesh,
+        wp,
         np.ascontiguousarray(origins, dtype=np.float64),
         np.ascontiguousarray(directions, dtype=np.float64),
         np.ascontiguousarray(start_cells, dtype=np.int64),
-        float(max_time_s),
-        int(max_reflections),
-        int(cap),
-        ent_cell,
-        ent_face,
-        ent_x,
-        ent_d,
+        ent,
         counts,
     )
     keep = (np.arange(cap)[None, :] < counts[:, None]).reshape(-1)
-    return ent_cell[keep], ent_face[keep], ent_x[keep], ent_d[keep]
+    return ent.cell[keep], ent.face[keep], ent.x[keep], ent.d[keep]
 
 
 def phase_times(
@@ -243,35 +245,21 @@ def phase_times(
     min_total_s: float = 0.3,
 ) -> dict[str, Any]:
     """Total trace time and its split (module docstring), seconds, best of ``repeats`` warm runs each."""
-    kw = {"max_time_s": max_time_s, "max_reflections": max_reflections}
+    kw: dict[str, Any] = {"max_time_s": max_time_s, "max_reflections": max_reflections}
     trace(mesh, curve, c_ref, origins[:1], directions[:1], start_cells[:1], **kw)  # compile
     total, res = best_time(
         lambda: trace(mesh, curve, c_ref, origins, directions, start_cells, **kw), repeats, min_total_s
     )
     cap = int(res.steps.max()) + 2  # the recording walk never takes more steps than the real one (+ a margin)
     ent = record_entries(mesh, curve, c_ref, origins, directions, start_cells, cap=cap, **kw)
+    entries = Entries(*ent)
     out = np.empty(len(ent[0]))
     code = CURVE_CODES[curve]
     phases = []
     for phase in (-1, 0, 1, 2):
 
         def go(phase: int = phase) -> None:
-            _replay(
-                phase,
-                mesh.planes,
-                mesh.neighbours,
-                mesh.media_ref,
-                mesh.ref_point,
-                mesh.gradient,
-                mesh.size,
-                code,
-                float(c_ref),
-                ent[0],
-                ent[1],
-                ent[2],
-                ent[3],
-                out,
-            )
+            _replay(phase, mesh, code, float(c_ref), entries, out)
 
         go()  # compile / warm
         phases.append(best_time(go, repeats, min_total_s)[0])
@@ -317,64 +305,15 @@ def run(quick: bool, scene_cache: dict[str, Any] | None = None) -> Section:
     """Quick: A-LD slabs (200 rays) + desert (1,000 rays), one timed run each; full: A-LD slabs (1,000 rays) +
     every built-in scene (10,000 rays), best of 2+. ``scene_cache`` (key -> SceneMesh or SceneUnavailable)
     shares scene meshes with the other sections."""
-    from bentray.engine.bench.scene_meshes import build_scene_mesh
-
-    count = 1000 if quick else 10_000
     repeats, min_total = (1, 0.0) if quick else (2, 0.5)
-    names = ("desert",) if quick else SCENE_NAMES
-    cache = scene_cache if scene_cache is not None else {}
     table = Table("table3_breakdown", "Table 3: time breakdown per scene and curve", COLUMNS)
-    scenes: list[SceneMesh | tuple[str, str]] = [_stratified_scene(count // 5 if quick else count // 10)]
-    for name in names:
-        key = f"{name}/{count}"
-        if key not in cache:
-            try:
-                cache[key] = build_scene_mesh(name, count)
-            except SceneUnavailable as exc:
-                cache[key] = exc
-        item = cache[key]
-        scenes.append((name, str(item)) if isinstance(item, SceneUnavailable) else item)
-    for sc in scenes:
+    for sc in _scenes(quick, scene_cache if scene_cache is not None else {}):
         if isinstance(sc, tuple):
             for curve in ("parabolic", "n_linear"):
                 table.add(scene=sc[0], curve=curve, note=f"skipped: {sc[1]}")
             continue
         for curve in ("parabolic", "n_linear"):
-            mesh = sc.mesh
-            if curve != "parabolic":
-                mesh = _requantify(sc, curve)
-            p = phase_times(
-                mesh,
-                curve,
-                340.0,
-                sc.origins,
-                sc.directions,
-                sc.start_cells,
-                max_time_s=10.0,
-                max_reflections=3,
-                repeats=repeats,
-                min_total_s=min_total,
-            )
-            tot = p["total_s"]
-            pct = {k: 100.0 * p[f"{k}_s"] / tot for k in ("setup", "face_intersections", "advance", "other")}
-            table.add(
-                scene=sc.name,
-                curve=curve,
-                cells=mesh.n_cells,
-                rays=len(sc.origins),
-                segments=p["segments"],
-                total_s=tot,
-                setup_s=p["setup_s"],
-                face_intersections_s=p["face_intersections_s"],
-                advance_s=p["advance_s"],
-                other_s=p["other_s"],
-                setup_pct=pct["setup"],
-                face_intersections_pct=pct["face_intersections"],
-                advance_pct=pct["advance"],
-                other_pct=pct["other"],
-                ns_per_segment=1e9 * tot / max(p["segments"], 1),
-                note=f"lost {p['status']['lost']}",
-            )
+            _add_row(table, sc, curve, repeats, min_total)
     sec = Section("breakdown", "Time breakdown (Table 3)")
     sec.text.append(
         "Rays spread evenly over the sphere from the scene's first source (A-LD slabs: from 1.5 m), 10 s, at most "
@@ -397,6 +336,62 @@ def run(quick: bool, scene_cache: dict[str, Any] | None = None) -> Section:
         )
     sec.tables.append(table)
     return sec
+
+
+def _scenes(quick: bool, cache: dict[str, Any]) -> list[SceneMesh | tuple[str, str]]:
+    """The A-LD slabs and the built-in scenes of run() (quick: desert only), built once into ``cache``; a
+    scene that cannot be built is (name, reason)."""
+    from bentray.engine.bench.scene_meshes import build_scene_mesh
+
+    count = 1000 if quick else 10_000
+    scenes: list[SceneMesh | tuple[str, str]] = [_stratified_scene(count // 5 if quick else count // 10)]
+    for name in ("desert",) if quick else SCENE_NAMES:
+        key = f"{name}/{count}"
+        if key not in cache:
+            try:
+                cache[key] = build_scene_mesh(name, count)
+            except SceneUnavailable as exc:
+                cache[key] = exc
+        item = cache[key]
+        scenes.append((name, str(item)) if isinstance(item, SceneUnavailable) else item)
+    return scenes
+
+
+def _add_row(table: Table, sc: SceneMesh, curve: str, repeats: int, min_total: float) -> None:
+    """Time one scene with one curve (phase_times: 10 s, 3 reflections) and add its row to ``table``."""
+    mesh = sc.mesh if curve == "parabolic" else _requantify(sc, curve)
+    p = phase_times(
+        mesh,
+        curve,
+        340.0,
+        sc.origins,
+        sc.directions,
+        sc.start_cells,
+        max_time_s=10.0,
+        max_reflections=3,
+        repeats=repeats,
+        min_total_s=min_total,
+    )
+    tot = p["total_s"]
+    pct = {k: 100.0 * p[f"{k}_s"] / tot for k in ("setup", "face_intersections", "advance", "other")}
+    table.add(
+        scene=sc.name,
+        curve=curve,
+        cells=mesh.n_cells,
+        rays=len(sc.origins),
+        segments=p["segments"],
+        total_s=tot,
+        setup_s=p["setup_s"],
+        face_intersections_s=p["face_intersections_s"],
+        advance_s=p["advance_s"],
+        other_s=p["other_s"],
+        setup_pct=pct["setup"],
+        face_intersections_pct=pct["face_intersections"],
+        advance_pct=pct["advance"],
+        other_pct=pct["other"],
+        ns_per_segment=1e9 * tot / max(p["segments"], 1),
+        note=f"lost {p['status']['lost']}",
+    )
 
 
 def _threads() -> int:

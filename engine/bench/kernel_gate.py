@@ -8,6 +8,13 @@ Python of the base commit and with that of the refactor, then compare (``np.arra
     python -m bentray.engine.bench.kernel_gate compare old.npz new.npz
     python -m bentray.engine.bench.kernel_gate timing OLD/.venv/bin/python NEW/.venv/bin/python [rounds]
 
+The numerical baselines have their own case set (every method, mesh and exact media; run as a script so that
+each interpreter imports its own bentray, the base commit may lack this command):
+
+    OLD/.venv/bin/python NEW/engine/bench/kernel_gate.py save_baselines old_b.npz
+    NEW/.venv/bin/python NEW/engine/bench/kernel_gate.py save_baselines new_b.npz
+    python -m bentray.engine.bench.kernel_gate compare old_b.npz new_b.npz
+
 Cases: the A-LD fan (log profile b = +1, slab mesh, 91 elevations -45..45 deg), a sphere of rays on the same
 mesh, the medium desert terrain mesh (1,500 rays over the sphere), each without field, with an incoherent
 and a coherent field (soft ground material on every reflecting face, a random ground table), with path
@@ -15,7 +22,9 @@ recording, and with a log wind (slabs) and a ridge wind (desert terrain). Saved 
 position, direction, time, length, status, reflections, crossings, nudges, steps, path arrays, and the
 field buffers (every accumulator array). ``timing`` alternates the two interpreters (subprocesses) over
 ``rounds`` rounds, each timing the desert sphere best of 3 warm runs, and prints best-of-rounds crossings
-per second and their ratio (new / old).
+per second and their ratio (new / old). ``save_baselines``: trace_numerical with euler, euler_adaptive, rk4
+and dopri5 (with and without renormalisation) over the A-LD slab mesh and the exact A-LD profile (a fan of 16
+rays, paths recorded), saving the trace, the restarts, rejected steps and evaluations.
 """
 
 from __future__ import annotations
@@ -23,6 +32,7 @@ from __future__ import annotations
 import subprocess
 import sys
 import time
+from typing import Any
 
 import numpy as np
 
@@ -94,7 +104,7 @@ def save(path: str) -> None:
     """Trace every case and save the arrays to ``path`` (.npz)."""
     from bentray.engine.tracer import trace
 
-    out: dict[str, np.ndarray] = {}
+    out: dict[str, Any] = {}
     winds = _winds()
     _scenes_cache.update(_scenes())
     for name, (mesh, o, d, cells) in _scenes_cache.items():
@@ -103,7 +113,7 @@ def save(path: str) -> None:
         hi = mesh.ref_point.max(axis=0)
         mid = 0.5 * (lo + hi)
         lo, hi = np.minimum(lo, mid - 50.0), np.maximum(hi, mid + 50.0)  # slabs: all ref points at y = 0
-        kw = {"max_time_s": 10.0, "max_reflections": 30}
+        kw: dict[str, Any] = {"max_time_s": 10.0, "max_reflections": 30}
         for wind_name, wind in (("still", None), ("wind", winds[name])):
             key = f"{name}/{wind_name}"
             t0 = time.perf_counter()
@@ -149,6 +159,49 @@ def save(path: str) -> None:
     print(f"saved {len(out)} arrays to {path}")
 
 
+def save_baselines(path: str) -> None:
+    """Trace the numerical-baseline cases (module docstring) and save the arrays to ``path`` (.npz)."""
+    from bentray.engine.baselines.exact_media import exact_media_spec
+    from bentray.engine.baselines.trace_numerical import trace_numerical
+    from bentray.engine.bench.baselines_probe import CASES
+    from bentray.engine.bench.breakdown import _stratified_scene
+
+    case = CASES["A-LD"]
+    ald = _stratified_scene(4)
+    o, d = case.fan(16)
+    common: dict[str, Any] = {
+        "origins": o,
+        "directions": d,
+        "max_time_s": 4.0,
+        "max_reflections": 20,
+        "path_samples": 30,
+        "domain_min": np.asarray(case.domain_min, float),
+        "domain_max": np.asarray(case.domain_max, float),
+    }
+    media_kw: dict[str, dict[str, Any]] = {
+        "mesh": {"mesh": ald.mesh, "start_cells": np.repeat(ald.start_cells[:1], len(o))},
+        "exact": {"exact_spec": exact_media_spec(case.profile())},
+    }
+    out: dict[str, Any] = {}
+    for media, mkw in media_kw.items():
+        for method in ("euler", "euler_adaptive", "rk4", "dopri5"):
+            for renorm in (False, True):
+                fixed = method in ("euler", "rk4")
+                setting: dict[str, Any] = {"step_m": 5.0} if fixed else {"step_m": 2.0, "tolerance": 1e-6}
+                stats: dict[str, np.ndarray] = {}
+                res, restarts = trace_numerical(
+                    method, media, renormalize=renorm, stats=stats, **setting, **mkw, **common
+                )
+                key = f"baseline/{media}/{method}/{'renorm' if renorm else 'plain'}"
+                _store(out, key, res, None)
+                out[f"{key}/restarts"] = restarts
+                out[f"{key}/rejected"] = stats["rejected"]
+                out[f"{key}/evaluations"] = stats["evaluations"]
+                print(f"{key}: steps {int(np.asarray(res.steps).sum())}, restarts {int(restarts.sum())}", flush=True)
+    np.savez(path, **out)
+    print(f"saved {len(out)} arrays to {path}")
+
+
 def compare(path_a: str, path_b: str) -> bool:
     """Print every array that differs (np.array_equal, NaN == NaN); True when all are identical."""
     a, b = np.load(path_a), np.load(path_b)
@@ -170,7 +223,7 @@ def _time_once() -> None:
     from bentray.engine.tracer import trace
 
     sc = build_scene_mesh("desert", 2000)
-    kw = {"max_time_s": 10.0, "max_reflections": 3}
+    kw: dict[str, Any] = {"max_time_s": 10.0, "max_reflections": 3}
     trace(sc.mesh, "parabolic", 340.0, sc.origins, sc.directions, sc.start_cells, **kw)
     best = np.inf
     for _ in range(3):
@@ -200,6 +253,8 @@ if __name__ == "__main__":
     cmd = sys.argv[1]
     if cmd == "save":
         save(sys.argv[2])
+    elif cmd == "save_baselines":
+        save_baselines(sys.argv[2])
     elif cmd == "compare":
         sys.exit(0 if compare(sys.argv[2], sys.argv[3]) else 1)
     elif cmd == "timing":

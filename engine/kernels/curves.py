@@ -93,7 +93,7 @@ def find_exit(curve: int, cs, x0, d0, planes, neighbours, entry: int, on_face_to
             b = mx * d0[0] + my * d0[1] + mz * d0[2]
             r = face_exit_parameter(0.0, b, c, is_entry, on_face_tol)
         else:
-            r = nlinear.face_exit(mx, my, mz, h, x0, cs[0:3], cs[3:6], cs[6], cs[7], cs[8], is_entry, on_face_tol, size)
+            r = nlinear.face_exit((mx, my, mz, h), x0, cs, is_entry, on_face_tol, size)
         if r < best:
             best = r
             best_face = f

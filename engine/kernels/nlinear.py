@@ -96,13 +96,22 @@ def _bisect(c, a, b, alpha, xi, u0, lo, hi):
 
 
 @nb.njit(**NJIT_FLAGS)
-def face_exit(mx, my, mz, h, x0, er, ez, alpha, xi, u0, is_entry, on_face_tol, size):
-    """Exit parameter r through one face plane (bisection), or +inf. Up-crossings only."""
+def face_exit(plane, x0, cs, is_entry, on_face_tol, size):
+    """Exit parameter r through one face plane (bisection), or +inf. Up-crossings only.
+
+    plane : (mx, my, mz, h) outward unit normal and offset (a tuple of floats); x0 : (3,) start (m);
+    cs : the curve record of curves.setup (er = cs[0:3], ez = cs[3:6], alpha, xi, u0 = cs[6], cs[7], cs[8]);
+    is_entry : the face the ray entered through; on_face_tol : m; size : cell size (m, bracket step).
+    """
+    mx, my, mz, h = plane
+    alpha = cs[6]
+    xi = cs[7]
+    u0 = cs[8]
     c = mx * x0[0] + my * x0[1] + mz * x0[2] - h
     if is_entry:
         c = 0.0
-    a = mx * er[0] + my * er[1] + mz * er[2]
-    b = mx * ez[0] + my * ez[1] + mz * ez[2]
+    a = mx * cs[0] + my * cs[1] + mz * cs[2]
+    b = mx * cs[3] + my * cs[4] + mz * cs[5]
     if b == 0.0:
         return face_exit_parameter(0.0, a, c, is_entry, on_face_tol)
     slope0 = a + b * math.sinh(u0)  # f'(0)
