@@ -80,12 +80,12 @@ def advanced_copy(par, sigma, out):
 def onto_face(par, plane, p, g, max_dsig):
     """Derivatives on the face plane (m, h) reached with slowness vector p: see the module docstring.
 
-    max_dsig : bound on |d sigma_k| (inf: exact; the traversal passes inf). A ray that crosses a face
-    between two cells nearly tangentially has |m.p| -> 0 and d sigma_k -> inf: the exact derivative of the
-    piecewise-linear medium there is a kick (g_old - g_new)/2 d sigma_k that a continuous medium does not
-    have; on terrain-following tets it flips tubes (spurious caustics, speckled maps). Bounding it by the
-    cell size / n removed the speckle (0.15 dB point to point without wind) but broke the exactness the
-    central-difference test checks (7x relative on slabs), so it is not used; a smoother medium is the fix.
+    max_dsig : bound on |d sigma_k| (inf: exact). A ray that crosses a face between two cells nearly
+    tangentially has |m.p| -> 0 and d sigma_k -> inf: the exact derivative of the piecewise-linear medium
+    there is a kick (g_old - g_new)/2 d sigma_k that a continuous medium does not have; on terrain-following
+    tets it flips tubes (spurious caustics, speckled maps). The traversal passes inf (exact) except when the
+    state feeds beams and the face is slanted (constants.BEAM_KICK_BOUND_NZ): then cell size / n (the ridge
+    map's point noise 1.7 -> 0.16 dB). trace(paraxial=True) without beams always gets the exact derivatives.
     """
     mp = plane[0] * p[0] + plane[1] * p[1] + plane[2] * p[2]
     if mp == 0.0:
