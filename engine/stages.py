@@ -31,9 +31,8 @@ from bentray.engine.result import MeshGeometry, TraceResult
 from bentray.engine.surfaces import SceneSurfaces
 from bentray.engine.trace_plan import BaselineSpec, TracePlan
 from bentray.engine.wind import sizing_quantity
-from bentray.scenes.library.registry import get_builtin
 from bentray.scenes.profile_models import profile_from_spec
-from bentray.scenes.scene_models import check_points_above_ground, surfaces_from_specs
+from bentray.scenes.scene_models import check_points_above_ground, scene_surfaces
 from bentray.scenes.schema import Job
 from bentray.scenes.wind_models import wind_from_spec
 
@@ -140,23 +139,7 @@ def launch_fan(job: Job) -> LaunchFan:
 
 def load_surfaces(job: Job, base_dir: Path | None = None) -> SceneSurfaces | None:
     """The scene's terrain, buildings and materials (None: flat ground only, no constrained meshing)."""
-    scene = job.scene
-    if scene.builtin is not None:
-        if not scene.has_surfaces:
-            return None
-        return get_builtin(scene.builtin, scene.resolution).surfaces
-    if scene.terrain is None and scene.buildings is None and scene.ground_zones is None:
-        return None
-    return surfaces_from_specs(
-        scene.terrain,
-        scene.buildings,
-        scene.materials,
-        base_dir,
-        scene.box,
-        prefix="scene",
-        ground_zones=scene.ground_zones,
-        offset=scene.local_origin if scene.crs is not None else None,
-    )
+    return scene_surfaces(job.scene, base_dir)
 
 
 def _domain(job: Job) -> tuple[np.ndarray, np.ndarray]:

@@ -28,28 +28,13 @@ def scene_problems(job: Any, base_dir: str | Path | None) -> list[str]:
 
     from bentray.engine.errors import BentrayError
     from bentray.scenes.media_checks import media_problems
-    from bentray.scenes.scene_models import check_points_above_ground, surfaces_from_specs
+    from bentray.scenes.scene_models import check_points_above_ground, scene_surfaces
 
     scene = job.scene
     problems: list[str] = []
     surfaces = None
     try:
-        if scene.builtin is not None:
-            if scene.has_surfaces:
-                from bentray.scenes.library.registry import get_builtin
-
-                surfaces = get_builtin(scene.builtin, scene.resolution).surfaces
-        elif scene.terrain is not None or scene.buildings is not None or scene.ground_zones is not None:
-            surfaces = surfaces_from_specs(  # as the job's scene stage reads them (engine/stages.py)
-                scene.terrain,
-                scene.buildings,
-                scene.materials,
-                base_dir,
-                scene.box,
-                prefix="scene",
-                ground_zones=scene.ground_zones,
-                offset=scene.local_origin if scene.crs is not None else None,
-            )
+        surfaces = scene_surfaces(scene, base_dir)  # as the job's scene stage reads them
     except (BentrayError, ValueError, OSError) as exc:
         problems += _lines(exc)
     if surfaces is not None:

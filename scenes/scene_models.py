@@ -561,3 +561,28 @@ def resolve_source_heights(job: Any, surfaces: SceneSurfaces | None) -> Any:
         z = float(ground[n]) + float(sources[i].height_above_ground_m)
         sources[i] = sources[i].model_copy(update={"position": (float(xy[n, 0]), float(xy[n, 1]), z)})
     return job.model_copy(update={"sources": sources})
+
+
+def scene_surfaces(scene: Any, base_dir: str | Path | None) -> SceneSurfaces | None:
+    """The surfaces of a job's ``scene`` (a validated ``Scene``): a built-in scene's own, or its terrain,
+    buildings and ground zones read from the specs and files under ``base_dir`` (CRS inputs shifted to the
+    local frame); None for flat ground only. The job's scene stage and the submit-time checks both use
+    this, so they read the same files the same way."""
+    if scene.builtin is not None:
+        if not scene.has_surfaces:
+            return None
+        from bentray.scenes.library.registry import get_builtin
+
+        return get_builtin(scene.builtin, scene.resolution).surfaces
+    if scene.terrain is None and scene.buildings is None and scene.ground_zones is None:
+        return None
+    return surfaces_from_specs(
+        scene.terrain,
+        scene.buildings,
+        scene.materials,
+        base_dir,
+        scene.box,
+        prefix="scene",
+        ground_zones=scene.ground_zones,
+        offset=scene.local_origin if scene.crs is not None else None,
+    )

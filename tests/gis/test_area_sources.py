@@ -31,6 +31,7 @@ from bentray.scenes.gis_sources import total_power_db
 
 shapely = pytest.importorskip("shapely")
 from bentray.scenes.gis_area_sources import discretise_area, read_area_sources_geojson  # noqa: E402
+from tests.gis.extended_sources import beam_levels_on_a_line  # noqa: E402
 
 ZS, ZR, HALF, LW_PER_M2 = 0.5, 4.0, 10.0, 60.0
 XS = HALF + 10.0 + 10.0 * np.arange(8)  # receivers 10 .. 80 m from the square's near edge (x = HALF)
@@ -57,34 +58,9 @@ def _closed_form(x: float) -> float:
 
 @cache
 def _levels() -> np.ndarray:
-    from bentray.engine.run import run_job
-    from bentray.scenes.schema import Job
-
-    job = {
-        "name": "area-source",
-        "scene": {"domain": {"min": [-HALF - 5, -HALF - 40, 0], "max": [XS[-1] + 10, HALF + 40, 30]}},  # rigid
-        "profile": {"kind": "homogeneous", "c0": 340.0},
-        "sources": [p.as_job_source() for p in _field_pieces()],
-        "rays": {
-            "elevation_deg": {"min": -60, "max": 60, "count": 41},
-            "azimuth_deg": {"min": -90, "max": 90, "count": 61},
-            "max_time_s": 1.0,
-            "max_reflections": 2,
-        },
-        "field": {
-            "origin": [float(XS[0]), 0.0, ZR],
-            "spacing": [10.0, 1.0, 1.0],
-            "shape": [len(XS), 1, 1],
-            "frequencies_hz": [500.0],
-            "absorption": False,
-            "mode": "incoherent",
-            "method": "beams",
-        },
-        "outputs": ["field", "report"],
-    }
-    out = run_job(Job.model_validate(job))
-    assert out.field is not None
-    return np.asarray(out.field.arrays["spl_500hz"], float).ravel()
+    sources = [p.as_job_source() for p in _field_pieces()]
+    domain = {"min": [-HALF - 5, -HALF - 40, 0], "max": [float(XS[-1]) + 10, HALF + 40, 30]}
+    return beam_levels_on_a_line("area-source", sources, domain, XS, ZR)
 
 
 def test_field_discretisation_conserves_the_area_power():

@@ -22,9 +22,8 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from bentray.engine.run import run_job
 from bentray.scenes.gis_sources import discretise_line, total_power_db
-from bentray.scenes.schema import Job
+from tests.gis.extended_sources import beam_levels_on_a_line
 
 ZS, ZR, HALF, LW_PER_M = 0.5, 4.0, 80.0, 60.0
 XS = 10.0 + 10.0 * np.arange(8)  # receivers 10 .. 80 m from the line, opposite its middle
@@ -46,31 +45,8 @@ def _pieces():
 
 @cache
 def _levels() -> np.ndarray:
-    job = {
-        "name": "line-source",
-        "scene": {"domain": {"min": [-5, -HALF - 5, 0], "max": [90, HALF + 5, 30]}},  # rigid flat ground
-        "profile": {"kind": "homogeneous", "c0": 340.0},
-        "sources": [p.as_job_source() for p in _pieces()],
-        "rays": {
-            "elevation_deg": {"min": -60, "max": 60, "count": 41},
-            "azimuth_deg": {"min": -90, "max": 90, "count": 61},
-            "max_time_s": 1.0,
-            "max_reflections": 2,
-        },
-        "field": {
-            "origin": [float(XS[0]), 0.0, ZR],
-            "spacing": [10.0, 1.0, 1.0],
-            "shape": [len(XS), 1, 1],
-            "frequencies_hz": [500.0],
-            "absorption": False,
-            "mode": "incoherent",
-            "method": "beams",
-        },
-        "outputs": ["field", "report"],
-    }
-    out = run_job(Job.model_validate(job))
-    assert out.field is not None
-    return np.asarray(out.field.arrays["spl_500hz"], float).ravel()
+    sources = [p.as_job_source() for p in _pieces()]
+    return beam_levels_on_a_line("line-source", sources, {"min": [-5, -HALF - 5, 0], "max": [90, HALF + 5, 30]}, XS, ZR)
 
 
 def test_discretisation_conserves_the_line_power():
