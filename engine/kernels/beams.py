@@ -253,9 +253,10 @@ def _turn(re, im, kmah):
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
-def _point_beam(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos, px, py, pz, v, scratch):
-    """The chord's beam at point (px, py, pz), accumulated into point v of ``acc``; False if it does not
-    own the point or its hat weight is zero. scratch : (15,) work array."""
+def _point_beam(grid, acc, slot, chord, px, py, pz, v, scratch):
+    """The beam of ``chord`` (see :func:`deposit_chord`) at point (px, py, pz), accumulated into point v of
+    ``acc``; False if it does not own the point or its hat weight is zero. scratch : (15,) work array."""
+    sa, sb, amp_a, amp_b, group, kmah, launch_cos = chord
     da = (px - sa[S_X]) * sa[S_T] + (py - sa[S_X + 1]) * sa[S_T + 1] + (pz - sa[S_X + 2]) * sa[S_T + 2]
     if da < 0.0:
         return False
@@ -332,15 +333,17 @@ def _point_beam(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos, 
 
 
 @nb.njit(**NJIT_FLAGS)
-def deposit_chord(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos):
+def deposit_chord(grid, acc, slot, chord):
     """Add the beam of the chord from sample ``sa`` to sample ``sb`` to every grid point it owns.
 
-    sa, sb : (SAMPLE_SIZE,) sample records; amp_a, amp_b : (2, F) complex amplitude factor per band
-    at the two samples (reflection coefficients, absorption; re in row 0, im in row 1);
-    group : arrival group of the chord; kmah : caustics passed (the amplitude turns by (-i)^kmah, time
-    factor exp(-i w t)); launch_cos : cos(launch elevation) (I / I_1m = launch_cos / J).
-    Returns the number of grid points that received a contribution.
+    chord : tuple (sa, sb, amp_a, amp_b, group, kmah, launch_cos): sa, sb (SAMPLE_SIZE,) sample records;
+    amp_a, amp_b (2, F) complex amplitude factor per band at the two samples (reflection coefficients,
+    absorption; re in row 0, im in row 1); group, the arrival group of the chord; kmah, caustics passed
+    (the amplitude turns by (-i)^kmah, time factor exp(-i w t)); launch_cos, cos(launch elevation)
+    (I / I_1m = launch_cos / J). Returns the number of grid points that received a contribution.
     """
+    sa = chord[0]
+    sb = chord[1]
     reach = max(_half_width(sa, grid.dgamma[0], grid.dgamma[1], grid.w_min),
                 _half_width(sb, grid.dgamma[0], grid.dgamma[1], grid.w_min))  # fmt: skip
     nx = grid.shape[0]
@@ -368,15 +371,16 @@ def deposit_chord(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos
             k0, k1 = _index_range(z_lo, z_hi, zo, grid.spacing[2], nz)
             for k in range(k0, k1 + 1):
                 v = (i * ny + j) * nz + k
-                if _point_beam(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos, px, py,
-                               zo + k * grid.spacing[2], v, scratch):  # fmt: skip
+                if _point_beam(grid, acc, slot, chord, px, py, zo + k * grid.spacing[2], v, scratch):
                     count += 1
     return count
 
 
 @nb.njit(**NJIT_FLAGS)
-def deposit_points(grid, acc, pts, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos):
+def deposit_points(grid, acc, pts, slot, chord):
     """The same for a list of receiver points (BeamPoints: binned on a coarse regular grid)."""
+    sa = chord[0]
+    sb = chord[1]
     n_pts = pts.xyz.shape[0]
     if n_pts == 0:
         return 0
@@ -402,8 +406,7 @@ def deposit_points(grid, acc, pts, slot, sa, sb, amp_a, amp_b, group, kmah, laun
                 b = (i * ny + j) * nz + k
                 for e in range(pts.bin_start[b], pts.bin_start[b + 1]):
                     v = pts.bin_items[e]
-                    if _point_beam(grid, acc, slot, sa, sb, amp_a, amp_b, group, kmah, launch_cos, pts.xyz[v, 0],
-                                   pts.xyz[v, 1], pts.xyz[v, 2], v, scratch):  # fmt: skip
+                    if _point_beam(grid, acc, slot, chord, pts.xyz[v, 0], pts.xyz[v, 1], pts.xyz[v, 2], v, scratch):
                         count += 1
     return count
 
@@ -476,14 +479,16 @@ class Beam(NamedTuple):
 
 
 @nb.njit(**NJIT_FLAGS)
-def ray_sample(beam, slot, ray, x, tangent, time, arc, slow, par, n_refl, refl_cos, refl_mat, launch_cos, start_new):
+def ray_sample(beam, slot, ray, x, tangent, time, arc, slow, par, refl, start_new):
     """Record a sample of the ray and deposit the chord from the previous one (unless start_new).
 
     x, tangent : (3,) position (m) and unit tangent; time (s), arc (m), slow = 1/c (s/m) there;
-    par : (12,) paraxial derivatives (engine/kernels/paraxial.py); n_refl : reflections so far (their
-    incidence cosines and materials in refl_cos, refl_mat). start_new: the sample starts a new chord
-    (launch, or the outgoing side of a reflection). Returns the number of points reached.
+    par : (12,) paraxial derivatives (engine/kernels/paraxial.py); refl : tuple (n_refl, refl_cos,
+    refl_mat, launch_cos): reflections so far, their incidence cosines and materials, and cos(launch
+    elevation). start_new: the sample starts a new chord (launch, or the outgoing side of a reflection).
+    Returns the number of points reached.
     """
+    n_refl, refl_cos, refl_mat, launch_cos = refl
     cur = ray.cur
     for i in range(3):
         cur[S_X + i] = x[i]
@@ -510,12 +515,12 @@ def ray_sample(beam, slot, ray, x, tangent, time, arc, slow, par, n_refl, refl_c
         grid = beam.grid
         if grid.mode != BEAM_OFF:
             group = chord_group(grid.n_refl, n_refl, kmah)
-            reached = deposit_chord(grid, beam.acc, slot, ray.last, cur, ray.amp_last, ray.amp_cur, group, kmah,
-                                    launch_cos)  # fmt: skip
+            chord = (ray.last, cur, ray.amp_last, ray.amp_cur, group, kmah, launch_cos)
+            reached = deposit_chord(grid, beam.acc, slot, chord)
         if beam.pts.xyz.shape[0] > 0:
             group = chord_group(beam.p_grid.n_refl, n_refl, kmah)
-            reached += deposit_points(beam.p_grid, beam.p_acc, beam.pts, slot, ray.last, cur, ray.amp_last,
-                                      ray.amp_cur, group, kmah, launch_cos)  # fmt: skip
+            chord = (ray.last, cur, ray.amp_last, ray.amp_cur, group, kmah, launch_cos)
+            reached += deposit_points(beam.p_grid, beam.p_acc, beam.pts, slot, chord)
     for i in range(SAMPLE_SIZE):
         ray.last[i] = cur[i]
     for f in range(ray.amp_cur.shape[1]):

@@ -268,36 +268,21 @@ def _emit(path_pts, path_t, path_s, base, cap, count, x, t, s):
 
 
 @nb.njit(**NJIT_FLAGS)
-def _emit_segment(
-    curve,
-    cs,
-    x0,
-    d0,
-    param_end,
-    t0,
-    s0,
-    t_end,
-    c_ref,
-    t_last,
-    dt_sample,
-    path_pts,
-    path_t,
-    path_s,
-    base,
-    cap,
-    count,
-    xs,
-    ts,
-):
-    """Interior samples of a segment spanning more than dt_sample (evaluated on the curve)."""
-    n_int = int((t_end - t0) / dt_sample)
-    if n_int > 2 * cap:
-        n_int = 2 * cap
+def _emit_segment(prm, paths, cs, x0, d0, param_end, span, base, count, xs, ts):
+    """Interior samples of a segment spanning more than dt_sample (evaluated on the curve).
+
+    prm : RayParams (curve, c_ref, dt_sample); paths : PathBuffers; span : (t0, s0, t_end, t_last) the
+    segment's start time (s) and arc (m), its end time and the last sample's time. Returns (count, t_last).
+    """
+    t0, s0, t_end, t_last = span
+    n_int = int((t_end - t0) / prm.dt_sample)
+    if n_int > 2 * paths.cap:
+        n_int = 2 * paths.cap
     for j in range(1, n_int + 1):
-        prm = param_end * j / (n_int + 1)
-        ds = curves.evaluate(curve, cs, x0, d0, prm, xs, ts)
-        tt = t0 + curves.time_at(curve, cs, prm, c_ref)
-        count = _emit(path_pts, path_t, path_s, base, cap, count, xs, tt, s0 + ds)
+        sig = param_end * j / (n_int + 1)
+        ds = curves.evaluate(prm.curve, cs, x0, d0, sig, xs, ts)
+        tt = t0 + curves.time_at(prm.curve, cs, sig, prm.c_ref)
+        count = _emit(paths.pts, paths.t, paths.s, base, paths.cap, count, xs, tt, s0 + ds)
         t_last = tt
     return count, t_last
 
@@ -313,21 +298,26 @@ def _p_at(cs, sigma, p_out):
 
 
 @nb.njit(**NJIT_FLAGS)
-def _beam_segment(beam, slot, bray, curve, cs, x, d, param, t, s, ds, c_ref, par, par_tmp, p_tmp, n_refl, refl_cos,
-                  refl_mat, launch_cos, xs, ts):  # fmt: skip
-    """Beam samples inside a segment longer than the chord length (on the curve, uniform in sigma)."""
+def _beam_segment(beam, slot, bray, prm, cs, x, d, seg, par, scratch, refl):
+    """Beam samples inside a segment longer than the chord length (on the curve, uniform in sigma).
+
+    prm : RayParams (curve, c_ref); seg : (param, t, s, ds) the segment's end parameter, start time (s),
+    start arc (m) and length (m); scratch : (par_tmp, p_tmp, xs, ts) work arrays; refl : the ray's
+    reflections tuple of beams.ray_sample.
+    """
+    param, t, s, ds = seg
+    par_tmp, p_tmp, xs, ts = scratch
     chord = beam.tabs.chord_m
     if ds <= chord:
         return
     n_int = int(ds / chord)
     for j in range(1, n_int + 1):
-        prm = param * j / (n_int + 1)
-        dsj = curves.evaluate(curve, cs, x, d, prm, xs, ts)
-        tj = t + curves.time_at(curve, cs, prm, c_ref)
-        paraxial.advanced_copy(par, prm, par_tmp)
-        nj = _p_at(cs, prm, p_tmp)
-        beams.ray_sample(beam, slot, bray, xs, ts, tj, s + dsj, nj / c_ref, par_tmp, n_refl, refl_cos, refl_mat,
-                         launch_cos, False)  # fmt: skip
+        sig = param * j / (n_int + 1)
+        dsj = curves.evaluate(prm.curve, cs, x, d, sig, xs, ts)
+        tj = t + curves.time_at(prm.curve, cs, sig, prm.c_ref)
+        paraxial.advanced_copy(par, sig, par_tmp)
+        nj = _p_at(cs, sig, p_tmp)
+        beams.ray_sample(beam, slot, bray, xs, ts, tj, s + dsj, nj / prm.c_ref, par_tmp, refl, False)
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -422,8 +412,9 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
             p_norm = math.sqrt(m_start)
             paraxial.launch(par, d, p_norm)
             if deposit_on:
-                beams.ray_sample(beam, acc, bray, x, d, 0.0, 0.0, p_norm / c_ref, par, 0, refl_cos, refl_mat,
-                                 launch_cos, True)  # fmt: skip
+                beams.ray_sample(
+                    beam, acc, bray, x, d, 0.0, 0.0, p_norm / c_ref, par, (0, refl_cos, refl_mat, launch_cos), True
+                )
         else:
             par_on = False
     deposit_on = deposit_on and par_on
@@ -537,13 +528,35 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
             ds = curves.evaluate(curve, cs, x, d, param_end, xn, dn)
             if par_on:  # HOOK (a), paraxial: the last segment, to max_time
                 if deposit_on:
-                    _beam_segment(beam, acc, bray, curve, cs, x, d, param_end, t, s, ds, c_ref, par, par_tmp, p_end,
-                                  reflections, refl_cos, refl_mat, launch_cos, xs, ts)  # fmt: skip
+                    _beam_segment(
+                        beam,
+                        acc,
+                        bray,
+                        prm,
+                        cs,
+                        x,
+                        d,
+                        (param_end, t, s, ds),
+                        par,
+                        (par_tmp, p_end, xs, ts),
+                        (reflections, refl_cos, refl_mat, launch_cos),
+                    )
                 paraxial.advance(par, param_end)
                 p_norm = _p_at(cs, param_end, p_end)
                 if deposit_on:
-                    beams.ray_sample(beam, acc, bray, xn, dn, max_time, s + ds, p_norm / c_ref, par, reflections,
-                                     refl_cos, refl_mat, launch_cos, False)  # fmt: skip
+                    beams.ray_sample(
+                        beam,
+                        acc,
+                        bray,
+                        xn,
+                        dn,
+                        max_time,
+                        s + ds,
+                        p_norm / c_ref,
+                        par,
+                        (reflections, refl_cos, refl_mat, launch_cos),
+                        False,
+                    )
             if f_on:
                 field.deposit_segment(
                     fld,
@@ -561,25 +574,7 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
                 )
             if record and max_time - t > dt_sample:
                 count, t_last = _emit_segment(
-                    curve,
-                    cs,
-                    x,
-                    d,
-                    param_end,
-                    t,
-                    s,
-                    max_time,
-                    c_ref,
-                    t_last,
-                    dt_sample,
-                    path_pts,
-                    path_t,
-                    path_s,
-                    path_base,
-                    path_cap,
-                    count,
-                    xs,
-                    ts,
+                    prm, paths, cs, x, d, param_end, (t, s, max_time, t_last), path_base, count, xs, ts
                 )
             for i in range(3):
                 x[i] = xn[i]
@@ -595,8 +590,19 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
             zero_run += 1
         if par_on:  # HOOK (a), paraxial: samples inside the segment, derivatives at its end (on its face)
             if deposit_on:
-                _beam_segment(beam, acc, bray, curve, cs, x, d, param, t, s, ds, c_ref, par, par_tmp, p_end,
-                              reflections, refl_cos, refl_mat, launch_cos, xs, ts)  # fmt: skip
+                _beam_segment(
+                    beam,
+                    acc,
+                    bray,
+                    prm,
+                    cs,
+                    x,
+                    d,
+                    (param, t, s, ds),
+                    par,
+                    (par_tmp, p_end, xs, ts),
+                    (reflections, refl_cos, refl_mat, launch_cos),
+                )
             paraxial.advance(par, param)
             p_norm = _p_at(cs, param, p_end)
             if face >= 0:
@@ -606,8 +612,19 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
                 bound = cell_size / p_norm if deposit_on and slanted else math.inf
                 paraxial.onto_face(par, planes[cell, face], p_end, g, bound)
                 if deposit_on and (neighbours[cell, face] < 0 or s + ds - bray.last[beams.S_ARC] >= beam.tabs.chord_m):
-                    beams.ray_sample(beam, acc, bray, xn, dn, t + dt, s + ds, p_norm / c_ref, par, reflections,
-                                     refl_cos, refl_mat, launch_cos, False)  # fmt: skip
+                    beams.ray_sample(
+                        beam,
+                        acc,
+                        bray,
+                        xn,
+                        dn,
+                        t + dt,
+                        s + ds,
+                        p_norm / c_ref,
+                        par,
+                        (reflections, refl_cos, refl_mat, launch_cos),
+                        False,
+                    )
         if f_on:
             field.deposit_segment(
                 fld, rf, reflections, curve, c_ref, cs, x, d, xn, m0, g, field.Segment(param, t, s, dt, ds)
@@ -615,25 +632,7 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
         if record:
             if dt > dt_sample:
                 count, t_last = _emit_segment(
-                    curve,
-                    cs,
-                    x,
-                    d,
-                    param,
-                    t,
-                    s,
-                    t + dt,
-                    c_ref,
-                    t_last,
-                    dt_sample,
-                    path_pts,
-                    path_t,
-                    path_s,
-                    path_base,
-                    path_cap,
-                    count,
-                    xs,
-                    ts,
+                    prm, paths, cs, x, d, param, (t, s, t + dt, t_last), path_base, count, xs, ts
                 )
         for i in range(3):
             x[i] = xn[i]
@@ -720,8 +719,19 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
             if par_on:
                 paraxial.reflect(par, planes[cell, face])
                 if deposit_on:
-                    beams.ray_sample(beam, acc, bray, x, d, t, s, p_norm / c_ref, par, reflections, refl_cos,
-                                     refl_mat, launch_cos, True)  # fmt: skip
+                    beams.ray_sample(
+                        beam,
+                        acc,
+                        bray,
+                        x,
+                        d,
+                        t,
+                        s,
+                        p_norm / c_ref,
+                        par,
+                        (reflections, refl_cos, refl_mat, launch_cos),
+                        True,
+                    )
             if record and t > t_last:
                 count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
                 t_last = t
@@ -745,8 +755,9 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
     if record and (count == 0 or t > t_last):
         count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
     if deposit_on and s > bray.last[beams.S_ARC]:  # HOOK (d), paraxial: the last chord
-        beams.ray_sample(beam, acc, bray, x, d, t, s, p_norm / c_ref, par, reflections, refl_cos, refl_mat,
-                         launch_cos, False)  # fmt: skip
+        beams.ray_sample(
+            beam, acc, bray, x, d, t, s, p_norm / c_ref, par, (reflections, refl_cos, refl_mat, launch_cos), False
+        )
     if want_par:
         out_par = rays.out_par[i_ray]
         for k in range(paraxial.PAR_SIZE):
