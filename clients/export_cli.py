@@ -64,7 +64,9 @@ def add_export(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p._negative_number_matcher = __import__("re").compile(r"^-\.?\d")
     p.add_argument("result", help="result directory holding field.vti (and report.json)")
     p.add_argument("--format", required=True, type=_formats, help=f"comma-separated: {', '.join(FORMATS)}")
-    p.add_argument("--array", default="spl_a", help="point array of field.vti (default spl_a)")
+    p.add_argument(
+        "--array", default=None, help="point array of field.vti (default spl_a; l_den for a job with conditions)"
+    )
     where = p.add_mutually_exclusive_group()
     where.add_argument("--z", type=float, help="map on the grid level nearest this z (metres)")
     where.add_argument("--height", type=float, help="map at this height above the ground (metres)")
@@ -100,6 +102,8 @@ def cmd_export(args: argparse.Namespace) -> int:
         origin = tuple(args.origin) if args.origin is not None else (0.0, 0.0)
         frame = LocalFrame(origin=(float(origin[0]), float(origin[1])), crs_wkt=wkt)
     grid, _report = read_result(args.result, frame)
+    if args.array is None:
+        args.array = "l_den" if "l_den" in grid.arrays else "spl_a"
     if args.array not in grid.arrays:
         raise CommandError(f"--array {args.array!r}: field.vti has {', '.join(sorted(grid.arrays))}")
     levels = check_levels(args.levels if args.levels is not None else DEFAULT_LEVELS_DB)

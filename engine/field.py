@@ -73,6 +73,8 @@ class FieldArrays:
 
     def preview_array(self) -> tuple[str, str]:
         """(array name, colour-bar label) shown in preview.png: A-weighted SPL, else TL at ~1 kHz."""
+        if "l_den" in self.arrays:  # a job with conditions (engine/conditions.py)
+            return "l_den", "Lden (dB(A))"
         if "spl_a" in self.arrays:
             return "spl_a", "SPL (dB(A))"
         tl = [k for k in self.arrays if k.startswith("tl_")]

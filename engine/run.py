@@ -8,19 +8,23 @@ why the others did not.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 from bentray.engine import stages
 from bentray.engine.eigenray_stage import merge_into_receivers
 from bentray.engine.executors import Executor, LocalExecutor
+from bentray.engine.media import Media, Wind
+from bentray.engine.profiles import Profile
 from bentray.engine.report import build_report
 from bentray.engine.result import JobOutcome
 from bentray.engine.stages import ProgressFn, StageLog
-from bentray.scenes.gis_frame import localise_job
+from bentray.engine.surfaces import SceneSurfaces
+from bentray.scenes.gis_frame import LocalFrame, localise_job
 from bentray.scenes.scene_models import resolve_source_heights
 from bentray.scenes.schema import Job
 
-__all__ = ["ProgressFn", "run_job"]
+__all__ = ["Prepared", "ProgressFn", "prepare_medium", "prepare_scene", "run_job", "run_prepared"]
 
 
 def _no_progress(stage: str, fraction: float) -> None:
@@ -32,6 +36,40 @@ def _band_labels(job: Job, setup: stages.FieldSetup) -> list[str]:
     template = setup.template
     settings = getattr(template, "settings", None) or job.field
     return list(settings.labels) if settings is not None else []
+
+
+@dataclass
+class Prepared:
+    """What a job's propagation needs before its sources are traced: the job in the local frame (source
+    heights resolved), its frame, profile, wind, surfaces, media mesh and the preparation's stage log.
+    :mod:`bentray.engine.conditions` builds one per condition (reusing the scene, and the mesh where the
+    medium is the same) and runs each emission group of sources on it."""
+
+    job: Job
+    frame: LocalFrame
+    profile: Profile
+    wind: Wind | None
+    surfaces: SceneSurfaces | None
+    media: Media
+    log: StageLog
+
+
+def prepare_scene(job: Job, base_dir: Path | None, log: StageLog) -> tuple[Job, LocalFrame, SceneSurfaces | None]:
+    """The job in the local frame with its source heights resolved, the frame, and the scene's surfaces."""
+    job, frame = localise_job(job)  # scene.crs: CRS coordinates -> the local frame (identity otherwise)
+    surfaces = stages.stage_scene(job, base_dir, log)
+    return resolve_source_heights(job, surfaces), frame, surfaces
+
+
+def prepare_medium(
+    job: Job, base_dir: Path | None, surfaces: SceneSurfaces | None, log: StageLog, progress: ProgressFn
+) -> tuple[Profile, Wind | None, Media]:
+    """The job's profile (measured from the ground where the scene says so), wind and media mesh."""
+    progress("profile", 0.0)
+    profile, wind = stages.stage_profile(job, base_dir, log)
+    profile = stages.stage_profile_heights(job, profile, surfaces, log)
+    progress("mesh", 0.05)
+    return profile, wind, stages.stage_mesh(job, profile, surfaces, wind, log)
 
 
 def run_job(
@@ -46,20 +84,34 @@ def run_job(
     base_dir : where the job's relative file paths (terrain, grids, tables) are resolved.
     progress(stage, fraction) is called at each stage and after each ray batch (fraction of the whole
     job, 0..1). executor : runs the ray batches (default: :class:`LocalExecutor`, this process; callers
-    that scale out pass e.g. ``executors.make_executor(dask_address)``).
+    that scale out pass e.g. ``executors.make_executor(dask_address)``). A job with ``conditions`` runs
+    once per condition and emission group (:func:`bentray.engine.conditions.run_conditions`).
     """
     report_progress = progress or _no_progress
-    job, frame = localise_job(job)  # scene.crs: CRS coordinates -> the local frame (identity otherwise)
     runner = executor if executor is not None else LocalExecutor()
+    if job.conditions:
+        from bentray.engine.conditions import run_conditions
+
+        return run_conditions(job, base_dir, progress=report_progress, executor=runner)
     log = StageLog()
-    report_progress("profile", 0.0)
-    profile, wind = stages.stage_profile(job, base_dir, log)
-    report_progress("scene", 0.02)
-    surfaces = stages.stage_scene(job, base_dir, log)
-    job = resolve_source_heights(job, surfaces)  # sources given by height above the ground get their z
-    profile = stages.stage_profile_heights(job, profile, surfaces, log)
-    report_progress("mesh", 0.05)
-    media = stages.stage_mesh(job, profile, surfaces, wind, log)
+    report_progress("scene", 0.0)
+    job, frame, surfaces = prepare_scene(job, base_dir, log)
+    profile, wind, media = prepare_medium(job, base_dir, surfaces, log, report_progress)
+    return run_prepared(Prepared(job, frame, profile, wind, surfaces, media, log), progress=report_progress,
+                        executor=runner)  # fmt: skip
+
+
+def run_prepared(prepared: Prepared, *, progress: ProgressFn, executor: Executor) -> JobOutcome:
+    """Trace the sources of a prepared job and build its field, receivers, eigenrays and report."""
+    job, profile, wind, surfaces, media = (
+        prepared.job,
+        prepared.profile,
+        prepared.wind,
+        prepared.surfaces,
+        prepared.media,
+    )
+    report_progress, runner = progress, executor
+    log = StageLog(dict(prepared.log.timings), dict(prepared.log.stages))
     fan = stages.launch_fan(job)
     start_cells = stages.stage_locate(job, media, surfaces, fan.source, log)
     setup = stages.stage_field_setup(job, profile, media.mesh, surfaces, fan.source, log)
@@ -88,6 +140,7 @@ def run_job(
         report["receivers"] = receivers.stats
     if arrivals is not None:
         report["eigenrays"] = arrivals.stats
+    frame = prepared.frame
     if frame.crs_wkt is not None:
         report["georeference"] = frame.as_dict()  # bentray export places the outputs back in the CRS
     report_progress("done", 1.0)

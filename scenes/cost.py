@@ -185,6 +185,14 @@ def estimate_cost(job: Any, threads: int) -> CostEstimate:
             deposits = n_rays * crossings * near_grid / h
     d_min = max(extent) / 200.0
     steps = n_rays * min(float(job.rays.max_steps), crossings * max(diagonal / d_min, 1.0))
+    # a job with conditions runs once per condition (engine/conditions.py) and keeps each condition's and
+    # emission group's levels (per-point arrays, a few per band) until they are combined
+    runs = max(1, len(getattr(job, "conditions", None) or []))
+    if runs > 1:
+        n_groups = len({s.period_offsets_db.as_tuple() if s.period_offsets_db else None for s in job.sources})
+        kept = runs * n_groups * (spec.n_points * (4 * len(spec.frequencies_hz) + 4) * 8 if spec is not None else 0)
+        paths, field_bytes = paths * runs, field_bytes + kept
+        deposits, steps, n_rays = deposits * runs, steps * runs, n_rays * runs
     return CostEstimate(paths, int(field_bytes), n_rays * RAY_STATE_BYTES, float(deposits), float(steps))
 
 
@@ -219,7 +227,30 @@ def _mesh_time(mesher: str, cells: float, basis: str) -> MeshEstimate:
 
 
 def estimate_mesh(job: Any, base_dir: str | Path | None = None) -> MeshEstimate:
-    """Cells and build seconds of the job's media mesh (module docstring); nothing is meshed.
+    """Cells and build seconds of the job's media mesh (module docstring); nothing is meshed. A job with
+    ``conditions`` builds one mesh per distinct medium (engine/conditions.py): their cells and seconds add.
+    """
+    conditions = getattr(job, "conditions", None) or []
+    if not conditions:
+        return _estimate_one_mesh(job, base_dir)
+    from bentray.scenes.condition_models import condition_job, medium_key
+
+    media = {}
+    for cond in conditions:
+        cjob = condition_job(job, cond)
+        media.setdefault(medium_key(cjob), cjob)
+    parts = [_estimate_one_mesh(cjob, base_dir) for cjob in media.values()]
+    return MeshEstimate(
+        parts[0].mesher,
+        float(sum(p.cells for p in parts)),
+        float(sum(p.seconds for p in parts)),
+        f"{len(parts)} media meshes (one per distinct condition medium): " + "; ".join(p.basis for p in parts),
+        all(p.known for p in parts),
+    )
+
+
+def _estimate_one_mesh(job: Any, base_dir: str | Path | None = None) -> MeshEstimate:
+    """Cells and build seconds of one media mesh (module docstring); nothing is meshed.
 
     ``base_dir``: the folder of the files the job names (None: files are not read, and a job whose
     profile or terrain is a file gets ``known=False``).

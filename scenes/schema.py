@@ -30,6 +30,14 @@ from pydantic_core import PydanticCustomError
 
 from bentray.engine.errors import BentrayError
 from bentray.scenes.bounds import MAX_LENGTH_M, MIN_LENGTH_M, Coord, Vec3
+from bentray.scenes.condition_models import (
+    MAX_CONDITIONS,
+    MAX_EMISSION_GROUPS,
+    Condition,
+    PeriodOffsets,
+    Periods,
+    occurrence_errors,
+)
 from bentray.scenes.crs import crs_errors
 from bentray.scenes.field_models import MAX_COHERENT_FIELD_POINTS, FieldSpec
 from bentray.scenes.ground_zones import GroundZonesSpec
@@ -283,6 +291,7 @@ class Source(_Model):
         default=None, max_length=64
     )
     name: str | None = Field(default=None, max_length=100)
+    period_offsets_db: PeriodOffsets | None = None  # emission per period re power_db (jobs with conditions)
 
     @model_validator(mode="after")
     def _one_height(self) -> Source:
@@ -483,6 +492,8 @@ class Job(_Model):
     field: FieldSpec | None = None
     receivers: list[Receiver] = Field(default_factory=list, max_length=MAX_RECEIVERS)
     eigenrays: EigenraySpec = Field(default_factory=EigenraySpec)
+    conditions: list[Condition] = Field(default_factory=list, max_length=MAX_CONDITIONS)
+    periods: Periods = Field(default_factory=Periods)
 
     @field_validator("name")
     @classmethod
@@ -592,9 +603,44 @@ class Job(_Model):
             )
         errors.extend(self._field_errors())
         errors.extend(self._baseline_errors())
+        errors.extend(self._condition_errors())
         if errors:
             _fail(errors, "Job")
         return self
+
+    def _condition_errors(self) -> list[tuple[tuple[str | int, ...], str, Any]]:
+        """Conditions need levels to combine: sources with power_db and a field or receivers."""
+        errors: list[tuple[tuple[str | int, ...], str, Any]] = []
+        if not self.conditions:
+            for i, src in enumerate(self.sources):
+                if src.period_offsets_db is not None:
+                    errors.append(
+                        (
+                            ("sources", i, "period_offsets_db"),
+                            "per-period emission is combined over 'conditions'; this job lists none (give at least "
+                            "one condition with its occurrences)",
+                            None,
+                        )
+                    )
+            return errors
+        errors.extend(occurrence_errors(self.conditions))
+        if any(src.power_db is None for src in self.sources):
+            errors.append((("conditions",), "conditions combine sound levels: every source needs power_db", None))
+        if self.field is None and not self.receivers:
+            errors.append((("conditions",), "conditions combine levels of a field or of receivers; give one", None))
+        if self.solver.is_baseline:
+            errors.append((("conditions",), "numerical baselines give no levels; use an analytic curve", None))
+        groups = {s.period_offsets_db.as_tuple() if s.period_offsets_db else (0.0, 0.0, 0.0) for s in self.sources}
+        if len(groups) > MAX_EMISSION_GROUPS:
+            errors.append(
+                (
+                    ("sources",),
+                    f"{len(groups)} different period_offsets_db; at most {MAX_EMISSION_GROUPS} emission groups "
+                    "per job (sources with the same offsets share one)",
+                    None,
+                )
+            )
+        return errors
 
     def _baseline_errors(self) -> list[tuple[tuple[str | int, ...], str, Any]]:
         """What the numerical baselines do not support (they are measured, not production, solvers)."""
