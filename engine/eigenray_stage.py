@@ -16,6 +16,8 @@ import numpy as np
 
 from bentray.engine import beam_field
 from bentray.engine.eigenrays import EigenraySearch, RayModel, SearchSettings, find_eigenrays
+from bentray.scenes.directivity_models import DirectivitySpec, launch_direction, ray_amplitudes
+from bentray.scenes.field_models import band_label
 from bentray.scenes.receiver_models import AUTO_EIGENRAY_PAIRS
 from bentray.scenes.schema import Job
 
@@ -111,6 +113,17 @@ def _rows(rid: str, src: int, search: EigenraySearch, freqs: np.ndarray) -> list
     return rows
 
 
+def _apply_directivity(spec: DirectivitySpec | None, labels: list[str], search: EigenraySearch) -> None:
+    """Scale each arrival's amplitude by the source's directivity toward its launch direction."""
+    if spec is None:
+        return
+    for a in search.arrivals:
+        if a.amplitude.size:
+            a.amplitude = (
+                a.amplitude * ray_amplitudes(spec, labels, launch_direction(a.elevation_deg, a.azimuth_deg))[0]
+            )
+
+
 def run_eigenrays(
     job: Job,
     models: list[RayModel],
@@ -123,6 +136,7 @@ def run_eigenrays(
         elevations=spec.elevations, tolerance_m=spec.tolerance_m, max_iterations=spec.max_iterations
     )
     freqs = np.asarray(frequencies_hz, float)
+    labels = [band_label(f) for f in freqs]
     omega = 2.0 * math.pi * freqs
     n_p = receivers_xyz.shape[0]
     tl_coh = np.full((freqs.size, n_p), np.nan)
@@ -134,6 +148,7 @@ def run_eigenrays(
         searches = []
         for s, model in enumerate(models):
             search = find_eigenrays(model, receivers_xyz[i], job.rays.max_time_s, settings)
+            _apply_directivity(job.sources[s].directivity, labels, search)
             searches.append(search)
             rows += _rows(rec.id, s, search, freqs)
             counts[i] += len(search.arrivals)

@@ -39,6 +39,7 @@ from bentray.scenes.condition_models import (
     occurrence_errors,
 )
 from bentray.scenes.crs import crs_errors
+from bentray.scenes.directivity_models import DirectivitySpec
 from bentray.scenes.field_models import MAX_COHERENT_FIELD_POINTS, FieldSpec
 from bentray.scenes.ground_zones import GroundZonesSpec
 from bentray.scenes.library.registry import BUILTIN_SCENES as _REGISTRY
@@ -292,6 +293,7 @@ class Source(_Model):
     )
     name: str | None = Field(default=None, max_length=100)
     period_offsets_db: PeriodOffsets | None = None  # emission per period re power_db (jobs with conditions)
+    directivity: DirectivitySpec | None = None  # level differences over directions (scenes/directivity_models.py)
 
     @model_validator(mode="after")
     def _one_height(self) -> Source:
@@ -604,9 +606,42 @@ class Job(_Model):
         errors.extend(self._field_errors())
         errors.extend(self._baseline_errors())
         errors.extend(self._condition_errors())
+        errors.extend(self._directivity_errors())
         if errors:
             _fail(errors, "Job")
         return self
+
+    def _directivity_errors(self) -> list[tuple[tuple[str | int, ...], str, Any]]:
+        """A directivity table must cover every band the job computes; beams carry it (not voxels)."""
+        errors: list[tuple[tuple[str | int, ...], str, Any]] = []
+        for i, src in enumerate(self.sources):
+            spec = src.directivity
+            if spec is None:
+                continue
+            if self.field is not None and self.field.method != "beams":
+                errors.append(
+                    (
+                        ("sources", i, "directivity"),
+                        "directivity needs field.method 'beams' (voxels do not carry it)",
+                        None,
+                    )
+                )
+            if self.field is not None:
+                labels = self.field.labels
+            elif src.power_db is not None:
+                labels = list(src.power_db)
+            else:
+                labels = []
+            missing = [b for b in labels if b not in spec.levels_db]
+            if missing:
+                errors.append(
+                    (
+                        ("sources", i, "directivity", "levels_db"),
+                        f"missing band(s) {', '.join(missing)} Hz of the job's bands; give a table per band",
+                        None,
+                    )
+                )
+        return errors
 
     def _condition_errors(self) -> list[tuple[tuple[str | int, ...], str, Any]]:
         """Conditions need levels to combine: sources with power_db and a field or receivers."""
