@@ -100,6 +100,7 @@ def test_eigenray_levels_carry_the_directivity_exactly():
         np.testing.assert_allclose(got_coh[not_dip], coh[f][not_dip], atol=0.02)
 
 
+@pytest.mark.xfail(strict=True, reason="the beam kernel's per-ray amplitude hook lands with the Gaussian-beam merge")
 def test_beam_levels_carry_the_directivity():
     _, inc = _oracle()
     table = _run("table").receivers
