@@ -72,7 +72,7 @@ def _iso_tl(f: float) -> np.ndarray:
 
 
 def test_oracle_quadrature_converged() -> None:
-    for f in (125.0, 500.0):
+    for f in (125.0,):  # (500 Hz: 5e-9 relative; 16 s)
         a, b = _oracle(f), _oracle(f, 40.0, 40)
         assert np.max(np.abs(a / b - 1)) < 1e-5
 
@@ -95,7 +95,8 @@ def _compare(bands: tuple[float, ...]) -> tuple[float, float, float, float]:
 def _check(bands: tuple[float, ...]) -> None:
     eng_max, eng_rms, iso_max, iso_rms = _compare(bands)
     print(
-        f"\n bands {bands}: engine max {eng_max:.3f} dB rms {eng_rms:.3f} dB; ISO Dz max {iso_max:.2f} rms {iso_rms:.2f}"
+        f"\n bands {bands}: engine max {eng_max:.3f} dB rms {eng_rms:.3f} dB; "
+        f"ISO Dz max {iso_max:.2f} rms {iso_rms:.2f}"
     )
     assert eng_max < 2.0
     assert eng_rms <= iso_rms and eng_max <= iso_max
