@@ -11,9 +11,10 @@ leg with |g| |AB| / c below STRAIGHT_REL, or a vertical leg, is straight (the ar
 of its length).
 
 :func:`fit_linear_c` fits the gradient by least squares to the effective sound speed (profile plus the
-wind along the leg's horizontal direction) sampled along the chord: the profile is linear over each leg
-at best approximately, so the fit is what makes "the leg follows the job's profile" concrete; refraction
-then changes the legs' travel times and the angles at the edge, hence the path difference.
+wind along the leg's horizontal direction) sampled along the chord and just above it: the profile is
+linear over each leg at best approximately, so the fit is what makes "the leg follows the job's profile"
+concrete; refraction then changes the legs' travel times and the angles at the edge, hence the path
+difference.
 """
 
 from __future__ import annotations
@@ -27,6 +28,11 @@ __all__ = ["STRAIGHT_REL", "Legs", "circular_legs", "fit_linear_c", "straight_le
 
 STRAIGHT_REL = 1e-9  # |g| |AB| / c below this: straight (relative sag ~ |g| |AB| / (8 c))
 N_FIT_SAMPLES = 9  # chord samples of the least-squares fit (the profile's curvature over one leg)
+# Each chord sample is also taken FIT_LIFT above the chord, FIT_LIFT = max(FIT_LIFT_MIN_M, FIT_LIFT_REL x
+# chord): about an arc's sag for typical gradients, and it gives a level leg a vertical gradient to fit
+# (upwards only: below the chord may be under the ground, where an above-ground profile is undefined).
+FIT_LIFT_MIN_M = 0.5
+FIT_LIFT_REL = 0.02
 
 
 class Legs(NamedTuple):
@@ -98,14 +104,18 @@ def fit_linear_c(
     b = np.atleast_2d(np.asarray(b, float))
     a, b = np.broadcast_arrays(a, b)
     s = np.linspace(0.0, 1.0, N_FIT_SAMPLES)
+    chord = np.linalg.norm(b - a, axis=1)
+    lift = np.maximum(FIT_LIFT_MIN_M, FIT_LIFT_REL * chord)  # vertical spread: a level leg still sees dc/dz
     pts = a[:, None, :] + s[None, :, None] * (b - a)[:, None, :]
+    pts = np.concatenate([pts, pts + lift[:, None, None] * np.array([0.0, 0.0, 1.0])], axis=1)
     d = b[:, :2] - a[:, :2]
     hn = np.linalg.norm(d, axis=1, keepdims=True)
     e = np.where(hn > 0, d / np.maximum(hn, 1e-300), np.array([1.0, 0.0]))
-    cs = np.asarray(c_eff(pts.reshape(-1, 3), np.repeat(e, N_FIT_SAMPLES, axis=0)), float).reshape(pts.shape[:2])
+    m = pts.shape[1]
+    cs = np.asarray(c_eff(pts.reshape(-1, 3), np.repeat(e, m, axis=0)), float).reshape(pts.shape[:2])
     dz = pts[:, :, 2] - a[:, None, 2]
     zm = dz.mean(axis=1, keepdims=True)
     cm = cs.mean(axis=1, keepdims=True)
     var = ((dz - zm) ** 2).sum(axis=1)
-    g = np.where(var > 1e-18, ((dz - zm) * (cs - cm)).sum(axis=1) / np.maximum(var, 1e-300), 0.0)
+    g = ((dz - zm) * (cs - cm)).sum(axis=1) / var
     return cm[:, 0] - g * zm[:, 0], g
