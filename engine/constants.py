@@ -134,3 +134,17 @@ PARALLEL_FLAGS: dict[str, Any] = {
     "error_model": "numpy",
     "parallel": True,
 }
+
+# ---------------------------------------------------------------------------------------------
+# Edge diffraction (engine/diffraction/)
+# ---------------------------------------------------------------------------------------------
+# A terrain mesh edge is a diffracting crest when the two triangles that share it turn away from each
+# other (convex, a ridge) by more than this angle between their normals. 10 degrees: gentler bends
+# diffract (and shadow) little at noise-map distances, and a 1 m DEM of real ground has bends of a few
+# degrees on every edge (roughness, not crests); a road embankment's shoulder or a ridge crest passes it.
+TERRAIN_CREST_MIN_DEG = 10.0
+# Lit-side width of the transition zone where the diffraction model replaces the beam field, as a
+# Fresnel number N = 2 delta / lambda of the lit-side path difference delta over the edge: at N = 1 the
+# UTD edge wave is ~0.2 of the geometric one (a +-1.6 dB ripple), and it falls as 1/sqrt(N) beyond; the
+# weight goes smoothly from 1 on the shadow boundary to 0 here, so the map stays continuous.
+DIFFRACTION_LIT_ZONE_FRESNEL = 1.0

@@ -73,6 +73,17 @@ class Footprint:
 
 
 @dataclass
+class Barrier:
+    """A thin noise barrier (diffraction only, not meshed): polyline (k, 2) float64 x, y metres (k >= 2),
+    a vertical screen from base_z to base_z + height_m (m); name for messages and reports."""
+
+    polyline: np.ndarray
+    height_m: float
+    base_z: float
+    name: str = ""
+
+
+@dataclass
 class GroundZone:
     """A plan-view zone of ground with its own material: polygon (k, 2) counter-clockwise, holes (h, 2)
     clockwise, rings not closed, metres; material : index into SceneSurfaces.materials. Later zones win
@@ -96,3 +107,4 @@ class SceneSurfaces:
     obstacle_materials: list[int] = field(default_factory=list)  # material index per obstacle (empty: rigid)
     materials: list[Material] = field(default_factory=lambda: [Material("rigid", None)])
     ground_zones: list[GroundZone] = field(default_factory=list)  # ground materials by zone (painted in order)
+    barriers: list[Barrier] = field(default_factory=list)  # thin screens: diffraction only (engine/diffraction)

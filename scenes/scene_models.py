@@ -20,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, field_validator, model_valida
 
 from bentray.engine.errors import JobInputError
 from bentray.engine.surfaces import Footprint, HeightGrid, Material, SceneSurfaces, TriangleSurface
+from bentray.scenes.barrier_models import BarrierSpec, barriers_from_specs, read_barriers_geojson
 from bentray.scenes.bounds import MAX_LENGTH_M, Coord, Vec2, json_coordinate_problem
 from bentray.scenes.geometry import box_pairs, terrain_height_at, terrain_xy_bounds
 from bentray.scenes.gis_frame import shift_footprint, shift_terrain, shift_zone
@@ -166,15 +167,19 @@ class ObstacleSpec(_Model):
 
 
 class BuildingsSpec(_Model):
-    """Buildings and barriers: a GeoJSON ``file`` of footprints, inline ``footprints``, closed ``obstacles``."""
+    """Buildings and barriers: a GeoJSON ``file`` of footprints, inline ``footprints``, closed ``obstacles``;
+    thin diffracting ``barriers`` (polylines with a height) inline or as a GeoJSON ``barriers_file``
+    (scenes/barrier_models.py)."""
 
     file: str | None = Field(default=None, min_length=1)
     footprints: list[FootprintSpec] = Field(default_factory=list, max_length=MAX_FOOTPRINTS)
     obstacles: list[ObstacleSpec] = Field(default_factory=list, max_length=1000)
+    barriers: list[BarrierSpec] = Field(default_factory=list, max_length=MAX_FOOTPRINTS)
+    barriers_file: str | None = Field(default=None, min_length=1, max_length=255)
     # metres per storey for `levels` / GeoJSON `building:levels`
     storey_height_m: float = Field(default=DEFAULT_STOREY_HEIGHT_M, gt=0, le=20)
 
-    @field_validator("file")
+    @field_validator("file", "barriers_file")
     @classmethod
     def _geojson(cls, value: str | None) -> str | None:
         if value is not None and Path(value).suffix.lower() not in (".geojson", ".json"):
@@ -183,8 +188,9 @@ class BuildingsSpec(_Model):
 
     @model_validator(mode="after")
     def _something(self) -> BuildingsSpec:
-        if self.file is None and not self.footprints and not self.obstacles:
-            raise ValueError("give a GeoJSON file, footprints or obstacles (or leave buildings out)")
+        if self.file is None and not self.footprints and not self.obstacles and not self.barriers:
+            if self.barriers_file is None:
+                raise ValueError("give a GeoJSON file, footprints or obstacles, or barriers (or leave buildings out)")
         for i, fp in enumerate(self.footprints):
             if not fp.height(self.storey_height_m) < MAX_BUILDING_HEIGHT_M:
                 raise ValueError(
@@ -389,10 +395,42 @@ def surfaces_from_specs(
             surfaces.obstacles.append((vertices, faces))
             surfaces.obstacle_materials.append(index[ob.material or RIGID])
     errors += _footprint_problems(labelled, surfaces.terrain, dmin, dmax)
+    if buildings is not None and (buildings.barriers or buildings.barriers_file):
+        errors += _read_barriers(buildings, surfaces, base_dir, dmin, dmax, prefix, offset)
     if errors:
         raise SceneSpecError("\n".join(errors))
     surfaces.footprints = [fp for _, fp in labelled]
     return surfaces
+
+
+def _read_barriers(
+    buildings: BuildingsSpec,
+    surfaces: SceneSurfaces,
+    base_dir: str | Path | None,
+    dmin: np.ndarray,
+    dmax: np.ndarray,
+    prefix: str,
+    offset: tuple[float, float] | None,
+) -> list[str]:
+    """Inline and file barriers into ``surfaces.barriers``; the domain problems, each naming its field."""
+    specs = list(buildings.barriers)
+    labels = [f"{prefix}.buildings.barriers.{i}" + (f" ({b.name!r})" if b.name else "") for i, b in enumerate(specs)]
+    if buildings.barriers_file is not None:
+        field = f"{prefix}.buildings.barriers_file"
+        try:
+            read = read_barriers_geojson(_resolve(base_dir, buildings.barriers_file))
+        except SceneFileError as exc:
+            raise SceneFileError(f"{field}: {exc}") from None
+        specs += read
+        labels += [f"{field}: {b.name!r}" for b in read]
+    terrain = surfaces.terrain
+
+    def ground_z(xy: np.ndarray) -> np.ndarray:
+        return terrain_height_at(terrain, xy) if terrain is not None else np.full(len(xy), float(dmin[2]))
+
+    barriers, problems = barriers_from_specs(specs, labels, dmin, dmax, ground_z, offset)
+    surfaces.barriers = barriers
+    return problems
 
 
 def surface_problems(surfaces: SceneSurfaces, domain_min, domain_max) -> list[str]:
