@@ -13,3 +13,8 @@ class JobInputError(BentrayError, ValueError):
 
 class MeshBuildError(BentrayError):
     """The media mesh could not be built within the limits (too many points, degenerate cells)."""
+
+
+class MaterialTableError(BentrayError, ValueError):
+    """A field's ground-reflection table has fewer materials (or bands) than the trace would index: the
+    mesh's faces carry a material index the table lacks. Raised before any kernel runs."""

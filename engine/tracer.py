@@ -9,6 +9,7 @@ import numpy as np
 
 from bentray.engine.beam_field import BeamBuffers, no_beam_args
 from bentray.engine.constants import (
+    BOUNDARY_REFLECT,
     COUNT_CROSSINGS,
     COUNT_NUDGES,
     COUNT_REFLECTIONS,
@@ -23,6 +24,7 @@ from bentray.engine.constants import (
     STATE_TIME,
     STATE_X,
 )
+from bentray.engine.errors import MaterialTableError
 from bentray.engine.field_buffers import REFLECTION_RECORD_CAP, FieldBuffers, no_field_tuple
 from bentray.engine.kernels.field import FieldAcc
 from bentray.engine.kernels.traverse import PAR_OUT_SIZE, PathBuffers, RayParams, Rays, trace_rays
@@ -64,6 +66,30 @@ class _FieldArgs(NamedTuple):
     n_slots: int
     beam: tuple[Any, ...]
     refl_cap: int
+
+
+def check_material_table(mesh: CellMesh, field: FieldBuffers) -> None:
+    """Raise MaterialTableError unless ``field``'s ground table (q2tab (n_mat, n_band, n_cos, n_r)) has a
+    row for every material index the mesh's reflecting faces carry and a band for every ``band_of`` entry.
+
+    The field kernel reads the table by these indices without a bounds check (an index past the table
+    reads foreign memory or crashes the process), so the wrapper checks once per call (one pass over the
+    (n_cells, K) face materials, about 1 ms per million faces)."""
+    n_mat, n_band = int(field.q2tab.shape[0]), int(field.q2tab.shape[1])
+    used = mesh.face_material[mesh.neighbours == BOUNDARY_REFLECT]
+    if used.size:
+        lo, hi = int(used.min()), int(used.max())
+        if lo < 0:
+            raise MaterialTableError(f"the mesh's reflecting faces carry a negative material index ({lo})")
+        if hi >= n_mat:
+            raise MaterialTableError(
+                f"the mesh's reflecting faces use {hi + 1} materials (indices 0..{hi}) but the field's ground "
+                f"table has {n_mat}"
+            )
+    if field.band_of.size and (int(field.band_of.min()) < 0 or int(field.band_of.max()) >= n_band):
+        raise MaterialTableError(
+            f"the field's band_of reaches band index {int(field.band_of.max())} but the ground table has {n_band} bands"
+        )
 
 
 def _field_args(
@@ -171,6 +197,8 @@ def trace(
     record = path_samples > 0
     path_buf = _path_buffers(n, path_samples, max_reflections)
     dt_sample = max_time_s / max(path_samples, 1)
+    if isinstance(field, FieldBuffers):
+        check_material_table(mesh, field)
     fa = _field_args(field, n, curve, paraxial, record_reflections)
     prm = RayParams(
         CURVE_CODES[curve],
