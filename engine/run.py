@@ -11,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from bentray.engine import stages
+from bentray.engine.diffraction.stage import stage_diffraction
 from bentray.engine.eigenray_stage import merge_into_receivers
 from bentray.engine.executors import Executor, LocalExecutor
 from bentray.engine.report import build_report
@@ -68,6 +69,8 @@ def run_job(
     report_progress("field", 0.9)
     field_arrays = stages.stage_field(job, profile, surfaces, traced, setup, log)
     receivers = stages.stage_receivers(job, traced, setup, log)
+    report_progress("diffraction", 0.92)
+    diffraction = stage_diffraction(job, profile, wind, surfaces, setup, field_arrays, receivers, log)
     report_progress("eigenrays", 0.93)
     arrivals = stages.stage_eigenrays(job, profile, wind, setup, start_cells, fan, log)
     if receivers is not None and arrivals is not None:
@@ -88,6 +91,8 @@ def run_job(
         report["receivers"] = receivers.stats
     if arrivals is not None:
         report["eigenrays"] = arrivals.stats
+    if diffraction is not None:
+        report["diffraction"] = diffraction
     if frame.crs_wkt is not None:
         report["georeference"] = frame.as_dict()  # bentray export places the outputs back in the CRS
     report_progress("done", 1.0)

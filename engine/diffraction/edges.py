@@ -88,8 +88,8 @@ def _barrier(poly: np.ndarray, base: float, top: float, name: str) -> tuple[Obst
 
 def _building(fp: Footprint, base: float, name: str) -> tuple[Obstacle, list[list[float]]]:
     poly = np.asarray(fp.polygon, float)
-    if np.cross(poly[1] - poly[0], poly[2] - poly[0]) == 0 or _signed_area(poly) < 0:
-        poly = poly[::-1] if _signed_area(poly) < 0 else poly
+    if _signed_area(poly) < 0:
+        poly = poly[::-1]
     top = base + float(fp.height_m)
     ob = Obstacle(name, "building")
     walls = []
@@ -108,7 +108,7 @@ def _building(fp: Footprint, base: float, name: str) -> tuple[Obstacle, list[lis
     for i in range(k):
         to_prev = -dirs[i - 1]
         to_next = dirs[i]
-        turn = float(np.cross(dirs[i - 1][:2], dirs[i][:2]))
+        turn = float(dirs[i - 1][0] * dirs[i][1] - dirs[i - 1][1] * dirs[i][0])
         if turn <= 0:  # reflex (or straight) vertex: no exterior wedge
             continue
         interior = float(np.arccos(np.clip(to_prev @ to_next, -1.0, 1.0)))
