@@ -12,6 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bentray.engine import stages
+from bentray.engine.diffraction.stage import stage_diffraction
 from bentray.engine.eigenray_stage import merge_into_receivers
 from bentray.engine.executors import Executor, LocalExecutor
 from bentray.engine.media import Media, Wind
@@ -120,6 +121,8 @@ def run_prepared(prepared: Prepared, *, progress: ProgressFn, executor: Executor
     report_progress("field", 0.9)
     field_arrays = stages.stage_field(job, profile, surfaces, traced, setup, log)
     receivers = stages.stage_receivers(job, traced, setup, log)
+    report_progress("diffraction", 0.92)
+    diffraction = stage_diffraction(job, profile, wind, surfaces, setup, field_arrays, receivers, log)
     report_progress("eigenrays", 0.93)
     arrivals = stages.stage_eigenrays(job, profile, wind, setup, start_cells, fan, log)
     if receivers is not None and arrivals is not None:
@@ -140,6 +143,8 @@ def run_prepared(prepared: Prepared, *, progress: ProgressFn, executor: Executor
         report["receivers"] = receivers.stats
     if arrivals is not None:
         report["eigenrays"] = arrivals.stats
+    if diffraction is not None:
+        report["diffraction"] = diffraction
     frame = prepared.frame
     if frame.crs_wkt is not None:
         report["georeference"] = frame.as_dict()  # bentray export places the outputs back in the CRS

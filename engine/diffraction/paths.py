@@ -30,10 +30,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from bentray.engine.acoustics.ground import ground_impedance, spherical_wave_coefficient
+from bentray.engine.diffraction.kernels import EPS_ON_BOUNDARY, fresnel_segment, wedge_coefficients
 from bentray.engine.diffraction.legs import Legs, straight_legs
-from bentray.engine.diffraction.wedge import DiffractedLeg, Edge, edge_legs, utd_field
+from bentray.engine.diffraction.wedge import DiffractedLeg, Edge, boundary_share, edge_legs, utd_field
 
-__all__ = ["GroundSide", "LegModel", "edge_paths"]
+__all__ = ["GroundSide", "LegModel", "double_edge_paths", "edge_paths"]
 
 # legs a -> b ((N, 3) each) -> Legs; the default is straight at c_ref
 LegModel = Callable[[np.ndarray, np.ndarray], Legs]
@@ -74,8 +75,18 @@ def edge_paths(
     rec_ground: GroundSide | None,
     legs: LegModel | None = None,
     geometric: bool = False,
+    visible_only: bool = False,
+    lateral: bool = False,
 ) -> np.ndarray:
     """Diffracted (+ geometric) pressure of the four image combinations, (4, F, N) complex.
+
+    visible_only: zero where the source or the receiver (or its image) is not in the air sector of the
+    wedge (0 <= phi <= n pi): the edge cannot see it (e.g. a receiver behind a building, below its roof,
+    seen from the front roof edge: that path goes over both roof edges, :func:`double_edge_paths`).
+    lateral: a vertical edge: all four combinations share its (plan-view) shadow boundary, so only (S, R)
+    and (S', R) are kept, the latter with the coefficient of the whole unfolded path (angle
+    (z_s - g + z_r - g) / R2, R2 = s_in + s_out): on the boundary that is the ground-reflected geometric
+    wave's, which the diffracted wave must meet; rec_ground is not used.
 
     src (3,) or (N, 3), rec (N, 3) metres; f_hz (F,) band centres; c_ref (m/s) the phase speed (k =
     2 pi f / c_ref, phases 2 pi f t along curved legs); grounds None: no reflection on that side.
@@ -97,7 +108,7 @@ def edge_paths(
             imgs.append((im, g))
         sides.append(imgs)
     for ci, (si, ri) in enumerate(((0, 0), (1, 0), (0, 1), (1, 1))):
-        if si >= len(sides[0]) or ri >= len(sides[1]):
+        if si >= len(sides[0]) or ri >= len(sides[1]) or (lateral and ri > 0):
             continue
         s_pts, gs = sides[0][si]
         r_pts, gr = sides[1][ri]
@@ -121,7 +132,13 @@ def edge_paths(
             if np.isfinite(edge.y_min) or np.isfinite(edge.y_max):
                 leg = leg._replace(share=edge_legs(edge, s_pts, r_pts, float(k[f])).share)
             p[f] = utd_field(edge.n, leg, k[f : f + 1], phase_m=c_ref * (leg_a.time + leg_b.time))[0]
-        if gs is not None:
+        if visible_only:
+            p *= (_seen(_angle(edge, s_pts - e_pts), edge.n) * _seen(_angle(edge, r_pts - e_pts), edge.n))[None, :]
+        if gs is not None and lateral:
+            assert src_ground is not None
+            r2 = leg_a.length + leg_b.length
+            p *= _q(f_hz, c_ref, src_ground, (rec[:, 2] - gs + src[:, 2] - gs) / r2, r2)
+        elif gs is not None:
             assert src_ground is not None
             p *= _q(f_hz, c_ref, src_ground, (e_pts[:, 2] - gs + src[:, 2] - gs) / leg_a.length, leg_a.length)
         if gr is not None:
@@ -174,4 +191,140 @@ def _geometric(
         cos_t = (src[on, 2] - (gs if ci == 1 else gr)[on] + rec[on, 2] - (gs if ci == 1 else gr)[on]) / direct.length
         p = p * _q(f_hz, c_ref, side, cos_t, direct.length)
     out[:, on] = p
+    return out
+
+
+def _images(side: GroundSide | None, pts: np.ndarray) -> list[tuple[np.ndarray, np.ndarray | None]]:
+    imgs: list[tuple[np.ndarray, np.ndarray | None]] = [(pts, None)]
+    if side is not None and side.reflect:
+        g = np.broadcast_to(np.asarray(side.z, float), (pts.shape[0],)).copy()
+        im = pts.copy()
+        im[:, 2] = 2.0 * g - pts[:, 2]
+        imgs.append((im, g))
+    return imgs
+
+
+def _seen(phi: np.ndarray, n: float) -> np.ndarray:
+    """Visibility weight of a direction at angle phi (rad, [0, 2 pi)) from a wedge of exterior angle n pi:
+    1 in the air sector, 0 in the solid, 1/2 exactly on a face plane (within EPS_ON_BOUNDARY): there the
+    wave that takes over beyond the face (the next edge's) carries its other half, as on a shadow
+    boundary; map points at exactly roof height are common."""
+    tol = EPS_ON_BOUNDARY
+    on = (phi <= tol) | (phi >= 2.0 * np.pi - tol) | (np.abs(phi - n * np.pi) <= tol)
+    return np.where(on, 0.5, np.where(phi < n * np.pi, 1.0, 0.0))
+
+
+def _clamp_angle(phi: np.ndarray, n: float) -> np.ndarray:
+    """Angles within 1e-9 of the faces (rounding of a grazing direction) onto [0, n pi]."""
+    phi = np.where(phi > 2.0 * np.pi - 1e-9, 0.0, phi)
+    return np.where((phi > n * np.pi) & (phi < n * np.pi + 1e-9), n * np.pi, phi)
+
+
+def double_edge_paths(
+    e1: Edge,
+    e2: Edge,
+    src: np.ndarray,
+    rec: np.ndarray,
+    f_hz: np.ndarray,
+    c_ref: float,
+    src_ground: GroundSide | None,
+    rec_ground: GroundSide | None,
+    legs: LegModel | None = None,
+    lateral: bool = False,
+) -> np.ndarray:
+    """Double diffraction S -> E1 -> E2 -> R over two parallel (or antiparallel) edges sharing a face (the
+    two roof edges of a flat roof, two corners of one wall), four image combinations, (4, F, N) complex.
+
+    Edge points from the unfolded straight path (Keller's law on both edges). Field (UTD, grazing
+    incidence on E2 along the shared face counts half, Kouyoumjian and Pathak):
+    ``D1 (1/2) D2 exp(i k (s1 + s2 + s3)) / sqrt(s1 s2 s3 (s1 + s2 + s3))`` with
+    ``L1 = s1 s2 sin^2 b / (s1 + s2)`` and, for the astigmatic wave leaving E1 (principal radii s2 and
+    s1 + s2, edge-plane radius s1 + s2), ``L2 = s2 s3 sin^2 b / (s2 + s3)``: with it the double wave's jump on
+    E2's shadow boundary is exactly the single wave of E1 it replaces (the flat roof's plane behind the
+    building: continuous). Zero where the
+    source cannot see E1 or the receiver cannot see E2 (outside their air sectors). The legs S -> E1 and
+    E2 -> R follow ``legs`` (curved), E1 -> E2 runs along the face (straight). The receiver-side ground
+    coefficient is taken on the unfolded leg E1 -> R' (angle and length), the one E1's single wave has on
+    E2's shadow boundary, where the two must meet. lateral (vertical edges): (S, R) and (S', R) only, the
+    latter with the whole unfolded path's coefficient, as in :func:`edge_paths`."""
+    rec = np.atleast_2d(np.asarray(rec, float))
+    src = np.broadcast_to(np.asarray(src, float), rec.shape).copy()
+    f_hz = np.atleast_1d(np.asarray(f_hz, float))
+    k = 2.0 * np.pi * f_hz / c_ref
+    leg_fn: LegModel = legs if legs is not None else (lambda a, b: straight_legs(a, b, c_ref))
+    n_pts = rec.shape[0]
+    out = np.zeros((4, len(f_hz), n_pts), complex)
+    ea = np.asarray(e1.direction, float)
+    p1, p2 = np.asarray(e1.point, float), np.asarray(e2.point, float)
+    # e2's point in e1's along-edge coordinate, and the perpendicular offset between the two lines
+    y2_0 = float((p2 - p1) @ ea)
+    sign2 = float(np.sign(np.asarray(e2.direction, float) @ ea))
+    gap = float(np.linalg.norm((p2 - p1) - y2_0 * ea))
+    for ci, (s_pts, gs) in enumerate(_images(src_ground, src)):
+        for ri, (r_pts, gr) in enumerate(_images(None if lateral else rec_ground, rec)):
+            rho_s = np.linalg.norm(np.cross(s_pts - p1, ea), axis=1)
+            rho_r = np.linalg.norm(np.cross(r_pts - p2, ea), axis=1)
+            ys = (s_pts - p1) @ ea
+            yr = (r_pts - p1) @ ea
+            tot = rho_s + gap + rho_r
+            y1 = ys + (yr - ys) * rho_s / tot
+            y2 = ys + (yr - ys) * (rho_s + gap) / tot
+            q1 = p1 + y1[:, None] * ea
+            q2 = p1 + y2[:, None] * ea + ((p2 - p1) - y2_0 * ea)
+            leg_a = leg_fn(s_pts, q1)
+            leg_c = leg_fn(q2, r_pts)
+            s2 = np.linalg.norm(q2 - q1, axis=1)
+            s1, s3 = leg_a.length, leg_c.length
+            sin_b = np.maximum(np.linalg.norm(np.cross(leg_a.t_end, ea), axis=1), 1e-12)
+            mid = (q2 - q1) / np.maximum(s2, 1e-300)[:, None]
+            phi1_in = _angle(e1, -leg_a.t_end)
+            phi1_out = _clamp_angle(_angle(e1, mid), e1.n)
+            phi2_in = _clamp_angle(_angle(e2, -mid), e2.n)
+            phi2_out = _angle(e2, leg_c.t_start)
+            seen = _seen(phi1_in, e1.n) * _seen(phi2_out, e2.n)
+            l1 = s1 * s2 * sin_b**2 / (s1 + s2)
+            l2 = s2 * s3 * sin_b**2 / (s2 + s3)  # the astigmatic wave from E1: caustics at E1 and s1 + s2 back
+            d1 = np.empty((len(k), n_pts), complex)
+            d2 = np.empty((len(k), n_pts), complex)
+            nn1 = np.full(n_pts, e1.n)
+            nn2 = np.full(n_pts, e2.n)
+            wedge_coefficients(nn1, phi1_out, phi1_in, l1, sin_b, k, d1)
+            wedge_coefficients(nn2, phi2_out, phi2_in, l2, sin_b, k, d2)
+            phase = c_ref * (leg_a.time + leg_c.time) + s2
+            share = np.ones((len(k), n_pts), complex)
+            ends = (
+                (e1, y1, s1, s2 + s3, phi1_out, phi1_in, l1),
+                (e2, sign2 * (y2 - y2_0), s1 + s2, s3, phi2_out, phi2_in, l2),
+            )
+            for f in range(len(k)):
+                for edge, y_loc, s_a, s_b, phi, phip, dist_l in ends:
+                    sh = _share(edge, y_loc, sin_b, s_a, s_b, float(k[f]))
+                    inside = (y_loc >= edge.y_min) & (y_loc <= edge.y_max)
+                    share[f] *= boundary_share(sh, inside, edge.n, phi, phip, float(k[f]) * dist_l)
+            p = 0.5 * d1 * d2 * np.exp(1j * k[:, None] * phase[None, :]) / np.sqrt(s1 * s2 * s3 * (s1 + s2 + s3))
+            p *= share * seen[None, :]
+            if gs is not None and lateral:
+                assert src_ground is not None
+                r2 = s1 + s2 + s3
+                p *= _q(f_hz, c_ref, src_ground, (rec[:, 2] - gs + src[:, 2] - gs) / r2, r2)
+            elif gs is not None:
+                assert src_ground is not None
+                p *= _q(f_hz, c_ref, src_ground, (q1[:, 2] - gs + src[:, 2] - gs) / s1, s1)
+            if gr is not None:  # on the unfolded leg from E1 (E2 -> R on its straight continuation): on E2's
+                assert rec_ground is not None  # shadow boundary the same coefficient as E1's single wave
+                r2 = np.linalg.norm(r_pts - q1, axis=1)
+                p *= _q(f_hz, c_ref, rec_ground, (q1[:, 2] - gr + rec[:, 2] - gr) / r2, r2)
+            out[ci + 2 * ri] = p
+    return out
+
+
+def _share(edge: Edge, y: np.ndarray, sin_b: np.ndarray, s_a: np.ndarray, s_b: np.ndarray, k: float) -> np.ndarray:
+    """The finite edge's share of the stationary-phase integral (see wedge.py) at edge coordinate y."""
+    if not (np.isfinite(edge.y_min) or np.isfinite(edge.y_max)):
+        return np.ones(y.shape, complex)
+    scale = np.sqrt(k * sin_b**2 * (1.0 / s_a + 1.0 / s_b) / np.pi)
+    u1 = np.ascontiguousarray((edge.y_min - y) * scale if np.isfinite(edge.y_min) else np.full(y.shape, -1e12))
+    u2 = np.ascontiguousarray((edge.y_max - y) * scale if np.isfinite(edge.y_max) else np.full(y.shape, 1e12))
+    out = np.empty(y.shape, complex)
+    fresnel_segment(u1, u2, out)
     return out

@@ -22,7 +22,16 @@ import numpy as np
 
 from bentray.engine.diffraction.kernels import EPS_ON_BOUNDARY, fresnel_segment, wedge_coefficients
 
-__all__ = ["DiffractedLeg", "Edge", "cylindrical", "diffracted_field", "edge_legs", "geometric_field", "utd_field"]
+__all__ = [
+    "DiffractedLeg",
+    "Edge",
+    "boundary_share",
+    "cylindrical",
+    "diffracted_field",
+    "edge_legs",
+    "geometric_field",
+    "utd_field",
+]
 
 _TOL = EPS_ON_BOUNDARY  # rad: a point this close to a geometric boundary gets half of that wave
 
@@ -87,7 +96,25 @@ def edge_legs(edge: Edge, src: np.ndarray, rec: np.ndarray, k_share: float) -> D
         out = np.empty(u1.shape, complex)
         fresnel_segment(u1, u2, out)
         share = out.reshape(rho.shape)
+        dist_l = s_in * s_out * sin_b0**2 / (s_in + s_out)
+        inside = (y_e >= edge.y_min) & (y_e <= edge.y_max)
+        share = boundary_share(share, inside, edge.n, phi, phi0, k_share * dist_l)
     return DiffractedLeg(s_in, s_out, phi0, phi, sin_b0, y_e, share)
+
+
+def boundary_share(
+    share: np.ndarray, inside: np.ndarray, n: float, phi: np.ndarray, phip: np.ndarray, kl: np.ndarray
+) -> np.ndarray:
+    """The finite edge's share near a shadow or reflection boundary (small UTD argument X = k L a): there
+    the diffracted wave's jump must meet the whole geometric wave it replaces, so while the stationary
+    point lies on the edge the share tends to 1 (weight exp(-X)); farther from the boundaries the ends'
+    share applies in full."""
+    x_min = np.full(np.shape(phi), np.inf)
+    for beta in (phi - phip, phi + phip):
+        for sgn in (1.0, -1.0):
+            big_n = np.floor((beta + sgn * np.pi) / (2.0 * n * np.pi) + 0.5)
+            x_min = np.minimum(x_min, kl * 2.0 * np.cos(0.5 * (2.0 * n * np.pi * big_n - beta)) ** 2)
+    return np.where(inside, share + (1.0 - share) * np.exp(-x_min), share)
 
 
 def utd_field(
