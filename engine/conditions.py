@@ -29,6 +29,7 @@ import numpy as np
 
 from bentray.engine.executors import Executor
 from bentray.engine.export.lden import lden
+from bentray.engine.field_sources import COMBINATION
 from bentray.engine.result import JobOutcome, concat_traces
 from bentray.engine.run import Prepared, ProgressFn, prepare_medium, prepare_scene, run_prepared
 from bentray.engine.stages import StageLog
@@ -105,6 +106,12 @@ def _combine_fields(job: Job, runs: list[ConditionRun], offsets: list[tuple[floa
         for key in spl_names:
             arrays[f"{key}__{name}"] = _group_sum([f.arrays[key] for f in fields])
         per_condition.append([f.arrays["spl_a"] for f in fields])
+        if "field_source" in fields[0].arrays:  # what produced the level (engine/field_sources.py), per condition
+            codes = np.asarray([f.arrays["field_source"] for f in fields])
+            same = np.all(codes == codes[0], axis=0)
+            arrays[f"field_source__{name}"] = np.where(same, codes[0], COMBINATION).astype(codes.dtype)
+    if "inside_solid" in first.arrays:
+        arrays["inside_solid"] = first.arrays["inside_solid"]  # geometry: the same in every condition
     arrays.update(_period_levels(job, per_condition, offsets))
     field_data = dict(first.field_data)
     field_data["conditions"] = (
