@@ -1,0 +1,271 @@
+"""Creeping waves in the shadow of upward refraction: the residue series of the linear-k^2 atmosphere.
+
+Model (Pierce, "Acoustics", 1981, ch. 9-8 / 9-9; Berry and Daigle 1988, JASA 83:2047; Embleton 1996,
+JASA 100:31). A point source at height z_s over a locally reacting plane ground (normalised impedance Z,
+time factor exp(-i w t)) in a stratified medium with
+
+    k(z)^2 = k0^2 (1 + a z),   a > 0   (sound speed decreasing with height: upward refraction;
+                                        c = c0 / sqrt(1 + a z) ~ c0 (1 - a z / 2), i.e. dc/dz = -a c0 / 2).
+
+The height equation phi'' + (k(z)^2 - kappa^2) phi = 0 has the solution that radiates upward
+(exp(+i int k_z dz) as z -> inf)
+
+    phi(z) = Ai(zeta + e^{-i pi/3} l z),   l = (k0^2 a)^(1/3),   kappa^2 = k0^2 - l^2 e^{i pi/3} zeta,
+
+and the ground condition phi'(0) + i beta phi(0) = 0 (beta = k0 / Z) gives the eigenvalue equation
+
+    Ai'(zeta) + q Ai(zeta) = 0,   q = i beta e^{i pi/3} / l
+
+(rigid ground q = 0: zeta_n = a'_n, the zeros of Ai'). Its roots are complex for any ground (Im kappa_n > 0:
+every mode decays with range: creeping waves, no trapped modes). The Green's function has no branch cut
+(Ai is entire), so the field is the residue series
+
+    p(r, z) = i pi sum_n phi_n(z_s) phi_n(z) H0^(1)(kappa_n r) / N_n,
+    N_n = int_0^inf phi_n^2 dz = (Ai'(zeta_n)^2 - zeta_n Ai(zeta_n)^2) / (e^{-i pi/3} l)
+
+(bilinear norm, the integral continued along the anti-Stokes line), normalised so that p ~ exp(i k R)/R
+near the source: |p|^2 is the energy re the free field at 1 m. The series is exact for this medium; it
+converges fast in the shadow (term n decays as exp(-Im kappa_n r), Im kappa_n ~ l^2 |a'_n| sin(60 deg) /
+(2 k0)) and slowly in the lit zone, where ray theory (the beam field) gives the level instead.
+
+Roots: Newton on Ai' + q Ai from the rigid zeros a'_n with q continued from 0 (|q| <= 1), or on
+Ai + (1/q) Ai' from the soft zeros a_n with 1/q continued from 0 (|q| > 1); the result is checked
+(relative residual, distinct roots) and a failure raises ``RuntimeError``. Airy values are taken in
+log form (``airye`` scaling where Re w >= 0) so that heights of hundreds of metres at kHz neither
+overflow nor underflow.
+
+Fit to a general stratified c(z) (:func:`fit_linear_k2`): ``a`` is chosen so that the model's
+limiting ray -- the ray that grazes the ground, x(h) = 2 sqrt(h / a) in linear k^2 -- reaches the
+source and receiver heights over the same total horizontal distance as the limiting ray of the real
+profile (Snell's law, quadrature): a = 4 (sqrt z_s + sqrt z_r)^2 / (X(z_s) + X(z_r))^2. So the model's
+shadow boundary is the ray-theory one (where the beam field ends), and the profile is sampled exactly
+where the shadow's geometry is decided: from the ground up to the source and receiver heights, each
+weighted as the limiting ray weights it (1/sqrt of the sound-speed drop). For a log profile
+c = c0 + b ln(1 + z/z0) the fit depends on z_s and z_r, not on the range: the range dependence of the
+real shadow (the creeping wave sees the strong near-ground gradient b/z0) is what the fit leaves out,
+measured against the GFPE in tests/shadows.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import cache
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.special import ai_zeros, airy, airye, hankel1e
+
+__all__ = [
+    "CreepingModes",
+    "LimitingRay",
+    "creeping_modes",
+    "creeping_pressure",
+    "fit_linear_k2",
+    "limiting_ray",
+]
+
+SoundSpeedOfHeight = Callable[[np.ndarray], np.ndarray]  # heights above ground (m, (n,)) -> c (m/s, (n,))
+
+_E_M60 = np.exp(-1j * np.pi / 3.0)  # e^{-i pi/3}
+_E_P60 = np.exp(1j * np.pi / 3.0)
+DEFAULT_MODES = 60
+_ROOT_RESIDUAL = 1e-9
+
+
+@cache
+def _airy_zeros(n: int) -> tuple[np.ndarray, np.ndarray]:
+    a, ap, _, _ = ai_zeros(n)  # zeros of Ai and of Ai' (real, negative, increasing |.|)
+    return a, ap
+
+
+def _log_ai(w: np.ndarray) -> np.ndarray:
+    """log Ai(w) (complex, principal branch of the exponent), any shape; Ai(w) = exp(result)."""
+    w = np.asarray(w, complex)
+    out = np.empty(w.shape, complex)
+    right = w.real >= 0.0
+    if right.any():
+        wr = w[right]
+        out[right] = np.log(airye(wr)[0]) - (2.0 / 3.0) * wr * np.sqrt(wr)
+    if (~right).any():
+        out[~right] = np.log(airy(w[~right])[0])
+    return out
+
+
+@dataclass(frozen=True)
+class CreepingModes:
+    """Residue-series modes of one frequency and one linear-k^2 medium.
+
+    zeta (n_modes,) complex roots of Ai' + q Ai; kappa (n_modes,) horizontal wavenumbers (1/m, Im > 0);
+    weight (n_modes,) i pi / N_n (1/m); l (1/m) the Airy scale (k0^2 a)^(1/3); k0 (1/m); a (1/m);
+    residual: max relative residual |Ai' + q Ai| / ((sqrt|zeta| + |q|) |Ai| + |Ai'|) of the roots.
+    """
+
+    zeta: np.ndarray
+    kappa: np.ndarray
+    weight: np.ndarray
+    l: float  # noqa: E741 - the Airy scale, Pierce's notation
+    k0: float
+    a: float
+    q: complex
+    residual: float
+
+
+def _newton(z0: np.ndarray, steps: np.ndarray, soft: bool) -> np.ndarray:
+    """Continue the roots z0 of F(z; 0) = 0 along the parameter values ``steps`` (complex, ending at the
+    target). Rigid start (soft False): F = Ai' + s Ai. Soft start: F = Ai + s Ai'."""
+    z = z0.astype(complex)
+    for s in steps:
+        for _ in range(40):
+            ai, aip, _, _ = airy(z)
+            if soft:
+                f, df = ai + s * aip, aip + s * z * ai
+            else:
+                f, df = aip + s * ai, z * ai + s * aip
+            dz = f / df
+            z = z - dz
+            if np.all(np.abs(dz) <= 1e-13 * (1.0 + np.abs(z))):
+                break
+    return z
+
+
+def creeping_modes(
+    frequency_hz: float, a: float, c0: float, impedance: complex | None, n_modes: int = DEFAULT_MODES
+) -> CreepingModes:
+    """The first ``n_modes`` residue-series modes (module docstring) at one frequency.
+
+    frequency_hz (Hz, > 0); a (1/m, > 0) the linear-k^2 coefficient; c0 (m/s) the ground sound speed;
+    impedance: normalised ground impedance Z (Re Z > 0, Im Z >= 0, exp(-i w t)) or None (rigid).
+    Raises RuntimeError when the continuation does not converge to distinct roots.
+    """
+    if not (frequency_hz > 0 and a > 0 and c0 > 0 and n_modes >= 1):
+        raise ValueError("frequency_hz, a, c0 and n_modes must be > 0")
+    k0 = 2.0 * math.pi * frequency_hz / c0
+    ell = (k0 * k0 * a) ** (1.0 / 3.0)
+    beta = 0.0 if impedance is None or not np.isfinite(impedance) else k0 / complex(impedance)
+    q = 1j * beta * _E_P60 / ell
+    zeros_soft, zeros_rigid = _airy_zeros(n_modes)
+    n_steps = int(min(60, max(1, math.ceil(abs(q) / 0.02)))) if abs(q) <= 1.0 else 0
+    if abs(q) <= 1.0:
+        zeta = _newton(zeros_rigid, q * np.linspace(0.0, 1.0, n_steps + 1)[1:], soft=False) if q != 0 else zeros_rigid
+    else:
+        p = 1.0 / q
+        n_steps = int(min(60, max(1, math.ceil(abs(p) / 0.02))))
+        zeta = _newton(zeros_soft, p * np.linspace(0.0, 1.0, n_steps + 1)[1:], soft=True)
+    zeta = np.asarray(zeta, complex)
+    ai, aip, _, _ = airy(zeta)
+    residual = float(np.max(np.abs(aip + q * ai) / ((np.sqrt(np.abs(zeta)) + abs(q)) * np.abs(ai) + np.abs(aip) + 1e-300)))
+    order = np.argsort(np.abs(zeta))
+    gaps = np.abs(np.diff(zeta[order]))
+    if residual > _ROOT_RESIDUAL or (gaps.size and gaps.min() < 1e-6) or not np.all(np.isfinite(zeta)):
+        raise RuntimeError(f"creeping-wave root continuation failed (q = {q:.4g}, residual {residual:.2e})")
+    zeta = zeta[order]
+    ai, aip = ai[order], aip[order]
+    kappa = np.sqrt(k0 * k0 - ell * ell * _E_P60 * zeta)
+    kappa = np.where(kappa.imag < 0.0, -kappa, kappa)
+    norm = (aip * aip - zeta * ai * ai) / (_E_M60 * ell)
+    weight = 1j * np.pi / norm
+    return CreepingModes(zeta=zeta, kappa=kappa, weight=weight, l=ell, k0=k0, a=a, q=complex(q), residual=residual)
+
+
+def creeping_terms(modes: CreepingModes, zs: float, ranges_m: ArrayLike, zr_m: ArrayLike) -> np.ndarray:
+    """Terms of the residue series, shape (n, n_modes) complex (p = sum over the last axis).
+
+    zs: source height (m, >= 0); ranges_m (n,) horizontal ranges (m, > 0); zr_m (n,) receiver heights
+    (m, >= 0), both above the (flat) ground.
+    """
+    r = np.asarray(ranges_m, float).ravel()
+    zr = np.asarray(zr_m, float).ravel()
+    if r.shape != zr.shape:
+        raise ValueError(f"ranges_m and zr_m must have the same length, got {r.shape} and {zr.shape}")
+    if np.any(~np.isfinite(r)) or np.any(r <= 0.0) or np.any(~np.isfinite(zr)) or np.any(zr < 0.0) or zs < 0.0:
+        raise ValueError("ranges must be finite and > 0, heights finite and >= 0 (m)")
+    c = _E_M60 * modes.l
+    log_s = _log_ai(modes.zeta + c * zs)  # (m,)
+    log_r = _log_ai(modes.zeta[None, :] + c * zr[:, None])  # (n, m)
+    x = modes.kappa[None, :] * r[:, None]
+    log_h = np.log(hankel1e(0, x)) + 1j * x
+    return np.exp(log_s[None, :] + log_r + log_h) * modes.weight[None, :]
+
+
+def creeping_pressure(modes: CreepingModes, zs: float, ranges_m: ArrayLike, zr_m: ArrayLike) -> np.ndarray:
+    """Complex pressure re 1 m free field of the residue series (module docstring), shape (n,)."""
+    return creeping_terms(modes, zs, ranges_m, zr_m).sum(axis=1)
+
+
+# ---------------------------------------------------------------------------------------------
+# The limiting ray of a stratified profile and the linear-k^2 fit
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class LimitingRay:
+    """The ray that grazes the ground in a stratified c(h), tabulated against the height h (m).
+
+    upward: True when c(h) < c(h_g) for every tabulated height above h_g (the ray leaves the ground
+    and never turns back down below ``h_max``); h_g (m): the height up to which c stays at its ground
+    value (0 for a profile that decreases from the ground; z_g for the log-law wind, which is 0 below
+    z_g): the limiting ray grazes the top of that layer. c_ground (m/s) = c(h_g).
+    ``x_of_h(h)`` gives the horizontal distance (m) from the grazing point to height h along the ray
+    (0 below h_g, nan above the first height where the ray would turn, i.e. c(h) >= c_ground).
+    """
+
+    h: np.ndarray
+    x: np.ndarray
+    h_g: float
+    c_ground: float
+    upward: bool
+
+    def x_of_h(self, heights: ArrayLike) -> np.ndarray:
+        hh = np.asarray(heights, float)
+        u = np.sqrt(np.maximum(hh - self.h_g, 0.0))
+        uu = np.sqrt(np.maximum(self.h - self.h_g, 0.0))
+        out = np.interp(u, uu, self.x, right=np.nan)
+        return np.where(hh <= self.h_g, 0.0, out)
+
+
+_GL_X, _GL_W = np.polynomial.legendre.leggauss(8)
+
+
+def limiting_ray(c_of_h: SoundSpeedOfHeight, h_max: float, n_intervals: int = 256) -> LimitingRay:
+    """Tabulate the grazing ray of c(h) from the ground to ``h_max`` (m).
+
+    Snell: cos theta(h) = c(h) / c_ground, dx/dh = cot theta. With h = h_g + u^2 the integrand
+    2 u cot theta is finite at the grazing point (c drops linearly there), and each of ``n_intervals``
+    equal steps in u is integrated with 8-point Gauss-Legendre. ``c_of_h`` maps heights above the
+    ground (m, (n,)) to sound speeds (m/s, (n,)).
+    """
+    if not (np.isfinite(h_max) and h_max > 0):
+        raise ValueError("h_max must be finite and > 0 (m)")
+    probe = np.concatenate([[0.0], np.geomspace(1e-4, h_max, 400)])
+    cp = np.asarray(c_of_h(probe), float)
+    if cp.shape != probe.shape or not np.all(np.isfinite(cp) & (cp > 0)):
+        raise ValueError("c_of_h must return finite sound speeds > 0 (m/s), one per height")
+    c_ground = float(cp[0])
+    flat = np.flatnonzero(cp < c_ground * (1.0 - 1e-12))
+    h_g = 0.0 if flat.size == 0 else float(probe[max(flat[0] - 1, 0)])
+    upward = flat.size > 0 and bool(np.all(cp[flat[0] :] < c_ground * (1.0 - 1e-12)))
+    u_max = math.sqrt(max(h_max - h_g, 0.0))
+    edges = np.linspace(0.0, u_max, n_intervals + 1)
+    mid, half = 0.5 * (edges[1:] + edges[:-1]), 0.5 * np.diff(edges)
+    u = (mid[:, None] + half[:, None] * _GL_X[None, :]).ravel()
+    c = np.asarray(c_of_h(h_g + u * u), float)
+    cos_t = c / c_ground
+    sin2 = 1.0 - cos_t * cos_t
+    with np.errstate(divide="ignore", invalid="ignore"):
+        integrand = np.where(sin2 > 0.0, 2.0 * u * cos_t / np.sqrt(sin2), np.inf)
+    pieces = (integrand.reshape(n_intervals, -1) * _GL_W[None, :]).sum(axis=1) * half
+    x = np.concatenate([[0.0], np.cumsum(pieces)])
+    x[~np.isfinite(x)] = np.nan
+    return LimitingRay(h=h_g + edges * edges, x=x, h_g=h_g, c_ground=c_ground, upward=bool(upward))
+
+
+def fit_linear_k2(ray: LimitingRay, zs: float, zr: ArrayLike) -> np.ndarray:
+    """The linear-k^2 coefficient a (1/m) whose limiting ray joins z_s and z_r over the real profile's
+    shadow-boundary distance X(z_s) + X(z_r) (module docstring); shape of ``zr``; nan where the real
+    ray does not reach the height (no shadow there)."""
+    zr = np.asarray(zr, float)
+    total = ray.x_of_h(np.array([zs]))[0] + ray.x_of_h(zr)
+    geo = np.sqrt(max(zs - ray.h_g, 0.0)) + np.sqrt(np.maximum(zr - ray.h_g, 0.0))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = 4.0 * geo * geo / (total * total)
+    return np.where(np.isfinite(a) & (a > 0.0), a, np.nan)
