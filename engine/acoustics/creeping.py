@@ -55,15 +55,23 @@ from functools import cache
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.integrate import simpson
+from scipy.interpolate import CubicSpline
 from scipy.special import ai_zeros, airy, airye, hankel1e
 
 __all__ = [
     "CreepingModes",
     "LimitingRay",
+    "ProfileModes",
     "creeping_modes",
     "creeping_pressure",
+    "creeping_layer_guess",
+    "creeping_terms",
     "fit_linear_k2",
     "limiting_ray",
+    "profile_height_functions",
+    "profile_modes",
+    "profile_pressure",
 ]
 
 SoundSpeedOfHeight = Callable[[np.ndarray], np.ndarray]  # heights above ground (m, (n,)) -> c (m/s, (n,))
@@ -72,6 +80,7 @@ _E_M60 = np.exp(-1j * np.pi / 3.0)  # e^{-i pi/3}
 _E_P60 = np.exp(1j * np.pi / 3.0)
 DEFAULT_MODES = 60
 _ROOT_RESIDUAL = 1e-9
+TOP_EXPONENT = 12.0  # e-folds of growth of a mode above which its radiation condition is set
 
 
 @cache
@@ -269,3 +278,225 @@ def fit_linear_k2(ray: LimitingRay, zs: float, zr: ArrayLike) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         a = 4.0 * geo * geo / (total * total)
     return np.where(np.isfinite(a) & (a > 0.0), a, np.nan)
+
+
+# ---------------------------------------------------------------------------------------------
+# The residue series of the real profile: Numerov from the ground, linear-k^2 Airy tail above z_top
+# ---------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ProfileModes:
+    """Residue-series modes of a stratified k^2(z) sampled on a uniform grid ``z`` (n_z,) from the
+    ground; above its own top height ``top`` (m,) each mode's medium continues as linear k^2
+    (``k2_top`` (m,) 1/m^2 and gradient ``gamma_top`` (m,) 1/m^3 there) and the mode as A Ai(v(z)).
+
+    kappa (m,) horizontal wavenumbers (Im > 0); weight (m,) i pi / N_n; phi (n_z, m) the height
+    functions on the grid (phi(0) = 1; used below ``top``); tail (m,) the amplitudes A;
+    residual: max relative mismatch of the roots at z_top; k0 (1/m) the ground wavenumber.
+    """
+
+    z: np.ndarray
+    kappa: np.ndarray
+    weight: np.ndarray
+    phi: np.ndarray
+    tail: np.ndarray
+    top: np.ndarray
+    k2_top: np.ndarray
+    gamma_top: np.ndarray
+    residual: float
+    k0: float
+
+
+def _v_top(k2_top: float, gamma: float, kappa2: np.ndarray, dz: np.ndarray | float) -> np.ndarray:
+    """Airy argument of the linear-k^2 tail, dz = z - z_top (m): e^{-i pi/3} (g^(1/3) dz + (k2_top -
+    kappa^2) / g^(2/3))."""
+    g3 = np.cbrt(gamma)
+    return _E_M60 * (g3 * dz + (k2_top - kappa2) / (g3 * g3))
+
+
+def _numerov(k2: np.ndarray, h: float, kappa2: np.ndarray, beta: complex) -> np.ndarray:
+    """phi'' = -(k^2 - kappa^2) phi upward from phi(0) = 1, phi'(0) = -i beta (Numerov, step h; the
+    stable direction: creeping modes grow with height). Returns phi (n_z, m)."""
+    n = k2.size
+    f = k2[:, None] - kappa2[None, :]  # (n, m)
+    c = h * h / 12.0
+    p0 = np.ones(kappa2.size, complex)
+    d0 = np.full(kappa2.size, -1j * beta, complex)
+    f0, f1 = f[0], f[1]
+    df0 = (f1 - f0) / h
+    dd0 = -f0 * p0
+    ddd0 = -df0 * p0 - f0 * d0
+    p1 = p0 + h * d0 + 0.5 * h * h * dd0 + h**3 / 6.0 * ddd0 + h**4 / 24.0 * (-2.0 * df0 * d0 - f0 * dd0)
+    out = np.empty((n, kappa2.size), complex)
+    out[0], out[1] = p0, p1
+    a_ = 2.0 * (1.0 - 5.0 * c * f)
+    b_ = 1.0 + c * f
+    for j in range(1, n - 1):
+        out[j + 1] = (a_[j] * out[j] - b_[j - 1] * out[j - 1]) / b_[j + 1]
+    return out
+
+
+def _at_top(phi: np.ndarray, h: float, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """phi and phi' (4th-order central difference) of each mode (column) at its own grid index."""
+    cols = np.arange(idx.size)
+    p = phi[idx, cols]
+    d = (-phi[idx + 2, cols] + 8.0 * phi[idx + 1, cols] - 8.0 * phi[idx - 1, cols] + phi[idx - 2, cols]) / (12.0 * h)
+    return p, d
+
+
+def _mismatch(
+    phi_t: np.ndarray, dphi_t: np.ndarray, k2_top: np.ndarray, gamma: np.ndarray, kappa2: np.ndarray
+) -> np.ndarray:
+    """1 - phi' Ai / (phi d Ai') at each mode's top: zero when phi continues as the upgoing Ai tail."""
+    ai, aip, _, _ = airy(_v_top(k2_top, gamma, kappa2, 0.0))
+    d = _E_M60 * np.cbrt(gamma)
+    return 1.0 - dphi_t * ai / (phi_t * d * aip)
+
+
+def profile_modes(
+    frequency_hz: float,
+    c_of_h: SoundSpeedOfHeight,
+    impedance: complex | None,
+    z_top: float,
+    guess_a: float,
+    n_modes: int = 12,
+    n_grid: int = 401,
+    n_continuation: int = 4,
+) -> ProfileModes:
+    """Residue-series modes of the stratified profile c(h) (``c_of_h``: heights above ground in m ->
+    m/s) from the ground up, each mode continued above its own top height as linear k^2 with the local
+    gradient (floored at 1e-7 k0^2 per m, a tail that still radiates upward).
+
+    Mode n's top is min(z_top, (TOP_EXPONENT / (2 sin 60deg |zeta_n|))^2 / l) with zeta_n, l of the
+    guess: above it the upgoing solution outgrows the other one by more than exp(TOP_EXPONENT), so the
+    radiation condition can no longer be resolved there -- and the mode's eigenvalue no longer depends
+    on the medium there. The roots are continued from those of the linear-k^2 model ``guess_a`` (1/m,
+    :func:`creeping_modes`) along k^2_s = (1 - s) k^2_lin + s k^2, s: 0 -> 1, with Newton at each step
+    (analytic mismatch, finite-difference derivative); a step is accepted when every mode converged,
+    none merged and none moved by more than 0.3 of its distance to the nearest other root, else
+    halved (RuntimeError below 1e-4).
+    """
+    if not (frequency_hz > 0 and z_top > 0 and guess_a > 0 and n_grid >= 16):
+        raise ValueError("frequency_hz, z_top and guess_a must be > 0, n_grid >= 16")
+    z = np.linspace(0.0, z_top, n_grid)
+    h = float(z[1] - z[0])
+    c = np.asarray(c_of_h(z), float)
+    if c.shape != z.shape or not np.all(np.isfinite(c) & (c > 0)):
+        raise ValueError("c_of_h must return finite sound speeds > 0 (m/s), one per height")
+    omega = 2.0 * math.pi * frequency_hz
+    k2_real = (omega / c) ** 2
+    k0 = omega / c[0]
+    lin = creeping_modes(frequency_hz, guess_a, float(c[0]), impedance, n_modes)
+    k2_lin = k0 * k0 * (1.0 + guess_a * z)
+    beta = 0.0 if impedance is None or not np.isfinite(impedance) else k0 / complex(impedance)
+    floor = 1e-7 * k0 * k0
+    scale = lin.l * lin.l
+    tops = np.minimum(z_top, (TOP_EXPONENT / (math.sqrt(3.0) * np.abs(lin.zeta))) ** 2 / lin.l)
+    idx = np.clip(np.rint(tops / h).astype(int), 4, n_grid - 3)
+
+    def medium(s: float, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        k2 = (1.0 - s) * k2_lin + s * k2_real
+        grad = np.maximum((k2[idx + 1] - k2[idx - 1]) / (2.0 * h), floor)
+        return k2, k2[idx], grad
+
+    def mismatch(k2v: np.ndarray, s: float, idx: np.ndarray) -> np.ndarray:
+        k2, k2t, gt = medium(s, idx)
+        pt, dt = _at_top(_numerov(k2, h, k2v, beta), h, idx)
+        return _mismatch(pt, dt, k2t, gt, k2v)
+
+    def newton(k2v: np.ndarray, s: float) -> tuple[np.ndarray, bool]:
+        for _ in range(15):
+            f0 = mismatch(k2v, s, idx)
+            step_h = 1e-7 * scale
+            df = (mismatch(k2v + step_h, s, idx) - f0) / step_h
+            step = f0 / df
+            if not np.all(np.isfinite(step)):
+                return k2v, False
+            k2v = k2v - step
+            if np.all(np.abs(step) <= 1e-10 * scale):
+                return k2v, True
+        return k2v, False
+
+    kap2 = lin.kappa**2
+    s_now, ds, tries = 0.0, 1.0 / n_continuation, 0
+    while s_now < 1.0 and tries < 200:
+        tries += 1
+        s_next = min(1.0, s_now + ds)
+        trial, done = newton(kap2, s_next)
+        spacing = np.min(np.abs(kap2[:, None] - kap2[None, :]) + np.eye(kap2.size) * 1e300, axis=1)
+        if done and np.all(np.abs(trial - kap2) < 0.3 * spacing):
+            kap2, s_now = trial, s_next
+            ds = min(2.0 * ds, 0.5)
+        else:
+            ds *= 0.5
+            if ds < 1e-4:
+                break
+    if s_now < 1.0:
+        raise RuntimeError(f"creeping-wave root continuation stalled at s = {s_now:.3g} ({frequency_hz:g} Hz)")
+    k2, k2t, gt = medium(1.0, idx)
+    phi = _numerov(k2, h, kap2, beta)
+    pt, dt = _at_top(phi, h, idx)
+    resid = np.abs(_mismatch(pt, dt, k2t, gt, kap2))
+    kappa = np.sqrt(kap2)
+    kappa = np.where(kappa.imag < 0.0, -kappa, kappa)
+    if resid.max() > 1e-6 or not np.all(kappa.imag > 0.0):
+        raise RuntimeError(f"creeping-wave roots failed their residual check ({frequency_hz:g} Hz)")
+    v_t = _v_top(k2t, gt, kap2, 0.0)
+    ai, aip, _, _ = airy(v_t)
+    tail = pt / ai
+    d = _E_M60 * np.cbrt(gt)
+    inner = np.array([simpson(phi[: i + 1, n] ** 2, x=z[: i + 1]) for n, i in enumerate(idx)])
+    outer = -(tail * tail) * (v_t * ai * ai - aip * aip) / d
+    return ProfileModes(
+        z=z,
+        kappa=kappa,
+        weight=1j * np.pi / (inner + outer),
+        phi=phi,
+        tail=tail,
+        top=z[idx],
+        k2_top=k2t,
+        gamma_top=gt,
+        residual=float(resid.max()),
+        k0=k0,
+    )
+
+
+def profile_height_functions(modes: ProfileModes, heights: ArrayLike) -> np.ndarray:
+    """phi_n(h) at heights h (m, (n,)) -> (n, m) complex: cubic interpolation of the Numerov values
+    below each mode's top, its Airy tail above."""
+    h = np.asarray(heights, float).ravel()
+    inner = CubicSpline(modes.z, modes.phi, axis=0)(np.minimum(h, modes.z[-1]))  # (n, m)
+    dz = np.maximum(h[:, None] - modes.top[None, :], 0.0)
+    v = _v_top(modes.k2_top[None, :], modes.gamma_top[None, :], (modes.kappa**2)[None, :], dz)
+    tail = modes.tail[None, :] * airy(v)[0]
+    return np.where(h[:, None] <= modes.top[None, :], inner, tail)
+
+
+def profile_pressure(modes: ProfileModes, zs: float, ranges_m: ArrayLike, zr_m: ArrayLike) -> np.ndarray:
+    """Complex pressure re 1 m free field of the profile's residue series, shape (n,)."""
+    r = np.asarray(ranges_m, float).ravel()
+    ps = profile_height_functions(modes, np.array([zs]))[0]
+    pr = profile_height_functions(modes, zr_m)
+    x = modes.kappa[None, :] * r[:, None]
+    hk = hankel1e(0, x) * np.exp(1j * x)
+    return (pr * hk * (ps * modes.weight)[None, :]).sum(axis=1)
+
+
+def creeping_layer_guess(c_of_h: SoundSpeedOfHeight, frequency_hz: float) -> float:
+    """Linear-k^2 coefficient a (1/m) of the secant sound-speed gradient over the creeping layer
+    0..delta, delta = |a'_1| / l(a) (the first mode's Airy height scale), solved by fixed-point
+    iteration: the starting medium of the root continuation in :func:`profile_modes`. nan when c does
+    not decrease over the layer."""
+    c0 = float(np.asarray(c_of_h(np.array([0.0])), float)[0])
+    k0 = 2.0 * math.pi * frequency_hz / c0
+    a1 = abs(float(_airy_zeros(1)[1][0]))
+    delta, a = 1.0, math.nan
+    for _ in range(30):
+        drop = c0 - float(np.asarray(c_of_h(np.array([delta])), float)[0])
+        if not drop > 0:
+            return math.nan
+        a = 2.0 * drop / (c0 * delta)
+        new = a1 / (k0 * k0 * a) ** (1.0 / 3.0)
+        if abs(new - delta) <= 1e-6 * delta:
+            break
+        delta = new
+    return a
