@@ -164,7 +164,9 @@ def creeping_modes(
         zeta = _newton(zeros_soft, p * np.linspace(0.0, 1.0, n_steps + 1)[1:], soft=True)
     zeta = np.asarray(zeta, complex)
     ai, aip, _, _ = airy(zeta)
-    residual = float(np.max(np.abs(aip + q * ai) / ((np.sqrt(np.abs(zeta)) + abs(q)) * np.abs(ai) + np.abs(aip) + 1e-300)))
+    residual = float(
+        np.max(np.abs(aip + q * ai) / ((np.sqrt(np.abs(zeta)) + abs(q)) * np.abs(ai) + np.abs(aip) + 1e-300))
+    )
     order = np.argsort(np.abs(zeta))
     gaps = np.abs(np.diff(zeta[order]))
     if residual > _ROOT_RESIDUAL or (gaps.size and gaps.min() < 1e-6) or not np.all(np.isfinite(zeta)):
