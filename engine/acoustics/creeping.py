@@ -354,7 +354,7 @@ def _mismatch(
     return 1.0 - dphi_t * ai / (phi_t * d * aip)
 
 
-def profile_modes(
+def _profile_modes(
     frequency_hz: float,
     c_of_h: SoundSpeedOfHeight,
     impedance: complex | None,
@@ -460,6 +460,22 @@ def profile_modes(
         residual=float(resid.max()),
         k0=k0,
     )
+
+
+def profile_modes(
+    frequency_hz: float,
+    c_of_h: SoundSpeedOfHeight,
+    impedance: complex | None,
+    z_top: float,
+    guess_a: float,
+    n_modes: int = 12,
+    n_grid: int = 401,
+    n_continuation: int = 4,
+) -> ProfileModes:
+    """Residue-series modes of a stratified profile (see ``_profile_modes`` for the method; trial
+    continuation steps that overflow are refused there, so floating-point warnings are silenced)."""
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        return _profile_modes(frequency_hz, c_of_h, impedance, z_top, guess_a, n_modes, n_grid, n_continuation)
 
 
 def profile_height_functions(modes: ProfileModes, heights: ArrayLike) -> np.ndarray:
