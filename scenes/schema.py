@@ -52,6 +52,7 @@ from bentray.scenes.receiver_models import (
     Receiver,
 )
 from bentray.scenes.scene_models import BuildingsSpec, MaterialSpec, TerrainSpec, material_reference_errors
+from bentray.scenes.turbulence_models import TurbulenceSpec
 from bentray.scenes.wind_models import WindSpec
 
 __all__ = [
@@ -487,6 +488,7 @@ class Job(_Model):
     scene: Scene
     profile: ProfileSpec
     wind: WindSpec | None = None
+    turbulence: TurbulenceSpec | None = None  # scattering into refractive shadows; off by default
     sources: list[Source] = Field(min_length=1, max_length=MAX_SOURCES)
     rays: Rays
     solver: Solver = Field(default_factory=Solver)
