@@ -19,6 +19,7 @@ from bentray.engine.media import Media, Wind
 from bentray.engine.profiles import Profile
 from bentray.engine.report import build_report
 from bentray.engine.result import JobOutcome
+from bentray.engine.shadow_stage import stage_refractive_shadow
 from bentray.engine.stages import ProgressFn, StageLog
 from bentray.engine.surfaces import SceneSurfaces
 from bentray.scenes.gis_frame import LocalFrame, localise_job
@@ -123,6 +124,7 @@ def run_prepared(prepared: Prepared, *, progress: ProgressFn, executor: Executor
     receivers = stages.stage_receivers(job, traced, setup, log)
     report_progress("diffraction", 0.92)
     diffraction = stage_diffraction(job, profile, wind, surfaces, setup, field_arrays, receivers, log)
+    shadow = stage_refractive_shadow(job, profile, wind, surfaces, setup, field_arrays, receivers, log)
     report_progress("eigenrays", 0.93)
     arrivals = stages.stage_eigenrays(job, profile, wind, setup, start_cells, fan, log)
     if receivers is not None and arrivals is not None:
@@ -145,6 +147,8 @@ def run_prepared(prepared: Prepared, *, progress: ProgressFn, executor: Executor
         report["eigenrays"] = arrivals.stats
     if diffraction is not None:
         report["diffraction"] = diffraction
+    if shadow is not None:
+        report["refractive_shadow"] = shadow
     frame = prepared.frame
     if frame.crs_wkt is not None:
         report["georeference"] = frame.as_dict()  # bentray export places the outputs back in the CRS

@@ -1,0 +1,182 @@
+"""The refractive-shadow stage: levels where upward refraction (or upwind propagation) leaves the ground
+in a ray-theory shadow, from creeping waves plus turbulent scattering
+(:func:`bentray.engine.acoustics.refractive_shadow.refractive_shadow_energy`), merged into the field after
+the diffraction stage.
+
+Per source, per point: the model's energy (creeping wave + scattering, relative to the 1 m free field)
+where the point lies beyond the limiting ray of the source's effective sound-speed column (its
+``applies`` mask). The sources' energies add (``powered`` with each source's power).
+
+Merge without double counting (:func:`bentray.engine.field_sources.combine`, mode "replace"): at a shadow
+point and band the level becomes the larger of the two estimates of the same field, the beam/diffraction
+level (beams leak a little past the limiting ray, and are right near it) and the shadow model (right
+deep in the shadow, where the beams have nothing). The two are equal where they cross, so the merged
+level is continuous; the lit zone (no ``applies``) is untouched. With several sources a point keeps the
+larger of the two totals (exact for one source). Skipped when no source sees upward refraction in any
+direction that reaches the points.
+
+Limits stated: the model is stratified and flat-ground (heights above the local ground under each point
+and under the source); terrain and buildings shadow through the diffraction stage, not here.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any
+
+import numpy as np
+
+from bentray.engine.acoustics.refractive_shadow import refractive_shadow_energy, upward_refracting
+from bentray.engine.acoustics.weighting import a_weighting_db
+from bentray.engine.field_sources import COMBINATION, NONE, REFRACTIVE_SHADOW, Contribution, combine
+from bentray.engine.field_sources import counts as source_counts
+
+__all__ = ["stage_refractive_shadow"]
+
+_AZIMUTH_PROBES = 36  # directions tested for upward refraction when deciding whether the stage is needed
+
+
+def _ground(job: Any, surfaces: Any):  # type: ignore[no-untyped-def]
+    from bentray.engine.diffraction.stage import _ground as ground
+
+    return ground(job, surfaces)
+
+
+def _needed(job: Any, profile: Any, wind: Any, ground_z: Any) -> bool:
+    if profile.kind == "homogeneous" and wind is None:
+        return False
+    az = np.linspace(0.0, 360.0, _AZIMUTH_PROBES, endpoint=False) if wind is not None else np.array([0.0])
+    for src in job.sources:
+        s = np.asarray(src.position, float)
+        g = float(ground_z(s[None, :2])[0])
+        if np.any(upward_refracting(profile, s, g, az, wind)):
+            return True
+    return False
+
+
+def _shadow_energy(
+    job: Any, profile: Any, wind: Any, pts: np.ndarray, f_hz: np.ndarray, ground_z: Any, sigma: float | None,
+    powers: np.ndarray | None,
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:  # fmt: skip
+    """(rel (F, V), powered (F, V) W/m^2 or None, applies (V,)) summed over the sources."""
+    n_f, n = f_hz.size, pts.shape[0]
+    rel = np.zeros((n_f, n))
+    powered = np.zeros((n_f, n)) if powers is not None else None
+    applies = np.zeros(n, bool)
+    turb = job.turbulence
+    t = (float(turb.c_t2), float(turb.c_v2)) if turb is not None else None
+    gz = ground_z(pts[:, :2])
+    for s, src in enumerate(job.sources):
+        xyz = np.asarray(src.position, float)
+        sg = float(ground_z(xyz[None, :2])[0])
+        sf = refractive_shadow_energy(profile, xyz, pts, gz, sg, sigma, f_hz, t, wind)
+        rel += sf.energy_rel
+        if powered is not None and powers is not None:
+            powered += sf.energy_rel * (powers[s][:, None] / (4.0 * math.pi))
+        applies |= sf.applies
+    return rel, powered, applies
+
+
+def _weight(old_rel: np.ndarray, new_rel: np.ndarray, applies: np.ndarray) -> np.ndarray:
+    """(F, V) 1 where the point is in a shadow and the shadow model's level is the larger."""
+    old = np.where(np.isfinite(old_rel), old_rel, 0.0)
+    return (applies[None, :] & (new_rel > old)).astype(float)
+
+
+def _codes(old: np.ndarray, w: np.ndarray, had_level: np.ndarray) -> np.ndarray:
+    every = w.min(axis=0) >= 1.0
+    some = w.max(axis=0) > 0.0
+    code = np.where(every, REFRACTIVE_SHADOW, np.where(some & had_level, COMBINATION, old))
+    code = np.where(some & ~had_level & ~every, REFRACTIVE_SHADOW, code)
+    return code.astype(np.uint8)
+
+
+def _rel_of(arrays: dict[str, np.ndarray], labels: list[str]) -> np.ndarray:
+    tl = np.stack([np.asarray(arrays[f"tl_{lab}hz"], float).reshape(-1) for lab in labels])
+    return np.where(np.isfinite(tl), 10.0 ** (-tl / 10.0), 0.0)
+
+
+def _apply_field(job: Any, profile: Any, wind: Any, surfaces: Any, setup: Any, field_arrays: Any) -> dict[str, Any]:
+    from bentray.engine.diffraction.stage import _field_points
+
+    spec = job.field
+    ground_z, sigma = _ground(job, surfaces)
+    labels = list(spec.labels)
+    f_hz = np.asarray(spec.frequencies_hz, float)
+    pts = _field_points(job, field_arrays, ground_z)
+    solid = np.asarray(field_arrays.arrays["inside_solid"], bool).reshape(-1)
+    rel_new, powered, applies = _shadow_energy(job, profile, wind, pts, f_hz, ground_z, sigma, setup.powers)
+    applies &= ~solid
+    old_rel = _rel_of(field_arrays.arrays, labels)
+    w = _weight(old_rel, rel_new, applies)
+    old_code = np.asarray(field_arrays.arrays["field_source"]).reshape(-1)
+    contrib = Contribution(REFRACTIVE_SHADOW, rel_new, w, powered=powered)
+    coherent = spec.mode != "incoherent"
+    combine(field_arrays.arrays, labels, np.asarray(a_weighting_db(f_hz), float), [contrib], coherent, solid)
+    code = _codes(old_code, w, old_rel.max(axis=0) > 0)
+    code[solid] = NONE
+    field_arrays.arrays["field_source"] = code.reshape(field_arrays.grid.shape)
+    counts = source_counts(code, solid)
+    field_arrays.stats["field_source"] = counts
+    return {"points_in_shadow": int(np.count_nonzero(applies)), "field_source": counts}
+
+
+def _apply_receivers(job: Any, profile: Any, wind: Any, surfaces: Any, setup: Any, receivers: Any) -> dict[str, Any]:
+    from bentray.engine.field_sources import combine_receiver_rows
+
+    ground_z, sigma = _ground(job, surfaces)
+    f_hz = np.asarray(receivers.stats["frequencies_hz"], float)
+    labels = [c[len("tl_inc_") : -2] for c in receivers.columns if c.startswith("tl_inc_")]
+    pts = np.asarray(setup.receivers_xyz, float)
+    rel_new, powered, applies = _shadow_energy(job, profile, wind, pts, f_hz, ground_z, sigma, setup.powers)
+    old_code = np.array([r.get("field_source", NONE) for r in receivers.rows], np.uint8)
+    conts = []
+    ws = []
+    for kind in ("coh", "inc"):
+        old = np.stack([[r[f"tl_{kind}_{lab}hz"] for r in receivers.rows] for lab in labels]).astype(float)
+        old_rel = np.where(np.isfinite(old), 10.0 ** (-old / 10.0), 0.0)
+        w = _weight(old_rel, rel_new, applies)
+        ws.append((w, old_rel.max(axis=0) > 0))
+        conts.append(Contribution(REFRACTIVE_SHADOW, rel_new, w, powered=powered))
+    combine_receiver_rows(receivers.rows, labels, np.asarray(a_weighting_db(f_hz), float), [conts[0]], [conts[1]])
+    code = _codes(old_code, *ws[1])
+    for i, r in enumerate(receivers.rows):
+        r["field_source"] = int(code[i])
+    receivers.stats["field_source"] = source_counts(code)
+    return {"in_shadow": int(np.count_nonzero(applies)), "field_source": source_counts(code)}
+
+
+def stage_refractive_shadow(
+    job: Any, profile: Any, wind: Any, surfaces: Any, setup: Any, field_arrays: Any, receivers: Any, log: Any
+) -> dict[str, Any] | None:
+    """Run the stage on the field arrays and receiver rows in place (module docstring); returns the
+    report's ``refractive_shadow`` section (None when skipped; the reason is in log.stages)."""
+    if field_arrays is None and receivers is None:
+        log.stages["refractive_shadow"] = "skipped: no field and no receivers"
+        return None
+    if field_arrays is not None and "field_source" not in field_arrays.arrays:
+        log.stages["refractive_shadow"] = "skipped: voxel fields carry no per-point source codes"
+        return None
+    ground_z, _ = _ground(job, surfaces)
+    if not _needed(job, profile, wind, ground_z):
+        log.stages["refractive_shadow"] = "skipped: no upward refraction from any source (no refractive shadow); " + (
+            "turbulence given but unused" if job.turbulence is not None else "turbulence off"
+        )
+        return None
+    t0 = time.perf_counter()
+    out: dict[str, Any] = {
+        "method": "creeping waves (residue series of the source column's profile) + turbulent scattering",
+        "turbulence": job.turbulence.model_dump() if job.turbulence is not None else None,
+    }
+    if field_arrays is not None:
+        out["field"] = _apply_field(job, profile, wind, surfaces, setup, field_arrays)
+    if receivers is not None and setup.receivers_xyz is not None:
+        out["receivers"] = _apply_receivers(job, profile, wind, surfaces, setup, receivers)
+    out["seconds"] = time.perf_counter() - t0
+    log.timings["refractive_shadow"] = out["seconds"]
+    n = out.get("field", {}).get("points_in_shadow", 0)
+    log.stages["refractive_shadow"] = f"ran: {n} field points in a refractive shadow; creeping waves" + (
+        " + turbulent scattering" if job.turbulence is not None else " (turbulence off)"
+    )
+    return out
