@@ -100,7 +100,7 @@ def edge_paths(
     out = np.zeros((4, len(f_hz), n_pts), complex)
     sides = []
     for side, pts in ((src_ground, src), (rec_ground, rec)):
-        imgs = [(pts, None)]
+        imgs: list[tuple[np.ndarray, np.ndarray | None]] = [(pts, None)]
         if side is not None and side.reflect:
             g = np.broadcast_to(np.asarray(side.z, float), (n_pts,))
             im = pts.copy()
@@ -188,7 +188,9 @@ def _geometric(
     if ci > 0:
         side = src_ground if ci == 1 else rec_ground
         assert side is not None
-        cos_t = (src[on, 2] - (gs if ci == 1 else gr)[on] + rec[on, 2] - (gs if ci == 1 else gr)[on]) / direct.length
+        g_side = gs if ci == 1 else gr
+        assert g_side is not None
+        cos_t = (src[on, 2] - g_side[on] + rec[on, 2] - g_side[on]) / direct.length
         p = p * _q(f_hz, c_ref, side, cos_t, direct.length)
     out[:, on] = p
     return out
