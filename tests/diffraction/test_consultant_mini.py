@@ -4,8 +4,8 @@ level except in the hill's own shadow (terrain crests are not diffracting edges 
 
 Measured (this session, `bentray run`, 2-core machine under load): homogeneous air 36.7 % of the air
 points without a beam, 0.6 % without a level after the stage (hill shadow); downward refraction (log
-b = 1) 26.6 % -> 0.0 %; whole run 27 s / 37 s, diffraction stage 6.8 s (8.8 s before the visibility pre-filter) / 13.7 s,
-peak RSS 0.37 / 0.97 GB.
+b = 1) 26.6 % -> 0.0 %; whole run 27 s / 37 s, diffraction stage 6.8 s (8.8 s before the visibility
+pre-filter) / 13.7 s, peak RSS 0.37 / 0.97 GB.
 """
 
 from __future__ import annotations
