@@ -17,6 +17,7 @@ job field (``scene.buildings.barriers.2: ...``).
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -101,7 +102,7 @@ def read_barriers_geojson(path: str | Path) -> list[BarrierSpec]:
         height = props.get("height_m", props.get("height"))
         for j, coords in enumerate(lines):
             try:
-                xy = [(float(c[0]), float(c[1])) for c in coords]
+                xy = [(float(c[0]), float(c[1])) for c in (coords or [])]
                 spec = BarrierSpec(
                     polyline=xy,
                     height_m=float(height) if height is not None else 0.0,
@@ -121,7 +122,7 @@ def barriers_from_specs(
     labels: list[str],
     dmin: np.ndarray,
     dmax: np.ndarray,
-    ground_z: object,
+    ground_z: Callable[[np.ndarray], np.ndarray],
     offset: tuple[float, float] | None = None,
 ) -> tuple[list[Barrier], list[str]]:
     """Engine barriers and the problems (one line each, starting with the label): a vertex outside the
@@ -147,7 +148,7 @@ def barriers_from_specs(
             base = float(spec.base_z)
         else:
             probe = np.vstack([xy, 0.5 * (xy[1:] + xy[:-1])])
-            base = float(np.min(np.asarray(ground_z(probe), float)))  # type: ignore[operator]
+            base = float(np.min(np.asarray(ground_z(probe), dtype=np.float64)))
         if base < dmin[2]:
             problems.append(f"{label}: base_z = {base:g} m is below the domain bottom (min z = {dmin[2]:g} m)")
             continue

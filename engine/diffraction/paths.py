@@ -32,7 +32,7 @@ import numpy as np
 from bentray.engine.acoustics.ground import ground_impedance, spherical_wave_coefficient
 from bentray.engine.diffraction.kernels import EPS_ON_BOUNDARY, fresnel_segment, wedge_coefficients
 from bentray.engine.diffraction.legs import Legs, straight_legs
-from bentray.engine.diffraction.wedge import DiffractedLeg, Edge, boundary_share, edge_legs, utd_field
+from bentray.engine.diffraction.wedge import DiffractedLeg, Edge, boundary_share, cylindrical, edge_legs, utd_field
 
 __all__ = ["GroundSide", "LegModel", "double_edge_paths", "edge_paths"]
 
@@ -94,13 +94,21 @@ def edge_paths(
     rec = np.atleast_2d(np.asarray(rec, float))
     src = np.broadcast_to(np.asarray(src, float), rec.shape).copy()
     f_hz = np.atleast_1d(np.asarray(f_hz, float))
+    if visible_only and not geometric:  # evaluate only where some combination sees both ends (speed)
+        mask = _any_seen(edge, src, rec, src_ground, rec_ground)
+        if not mask.all():
+            out_all = np.zeros((4, len(f_hz), rec.shape[0]), complex)
+            if mask.any():
+                out_all[:, :, mask] = edge_paths(edge, src[mask], rec[mask], f_hz, c_ref, _subset(src_ground, mask),
+                                                 _subset(rec_ground, mask), legs, False, True, lateral)  # fmt: skip
+            return out_all
     k = 2.0 * np.pi * f_hz / c_ref
     leg_fn: LegModel = legs if legs is not None else (lambda a, b: straight_legs(a, b, c_ref))
     n_pts = rec.shape[0]
     out = np.zeros((4, len(f_hz), n_pts), complex)
     sides = []
     for side, pts in ((src_ground, src), (rec_ground, rec)):
-        imgs = [(pts, None)]
+        imgs: list[tuple[np.ndarray, np.ndarray | None]] = [(pts, None)]
         if side is not None and side.reflect:
             g = np.broadcast_to(np.asarray(side.z, float), (n_pts,))
             im = pts.copy()
@@ -188,7 +196,9 @@ def _geometric(
     if ci > 0:
         side = src_ground if ci == 1 else rec_ground
         assert side is not None
-        cos_t = (src[on, 2] - (gs if ci == 1 else gr)[on] + rec[on, 2] - (gs if ci == 1 else gr)[on]) / direct.length
+        g_side = gs if ci == 1 else gr
+        assert g_side is not None
+        cos_t = (src[on, 2] - g_side[on] + rec[on, 2] - g_side[on]) / direct.length
         p = p * _q(f_hz, c_ref, side, cos_t, direct.length)
     out[:, on] = p
     return out
@@ -202,6 +212,41 @@ def _images(side: GroundSide | None, pts: np.ndarray) -> list[tuple[np.ndarray, 
         im[:, 2] = 2.0 * g - pts[:, 2]
         imgs.append((im, g))
     return imgs
+
+
+def _subset(side: GroundSide | None, mask: np.ndarray) -> GroundSide | None:
+    """The ground side restricted to the masked points (per-point heights sliced)."""
+    if side is None or np.ndim(side.z) == 0:
+        return side
+    return GroundSide(np.asarray(side.z, float)[mask], side.flow_resistivity, side.reflect)
+
+
+def _any_seen(
+    edge: Edge,
+    src: np.ndarray,
+    rec: np.ndarray,
+    src_ground: GroundSide | None,
+    rec_ground: GroundSide | None,
+    src_only: bool = False,
+    rec_only: bool = False,
+    slack: float = 0.05,
+) -> np.ndarray:
+    """(N,) bool, conservative: some image combination may see the source (and/or the receiver) from the
+    edge (straight Keller point; ``slack`` rad of margin for curved legs). Only a filter: the exact
+    visibility weights are applied afterwards."""
+    n = edge.n
+    out = np.zeros(rec.shape[0], bool)
+    for s_pts, _ in _images(src_ground, src):
+        for r_pts, _ in _images(rec_ground, rec):
+            rho0, phi0, y0 = cylindrical(edge, s_pts)
+            rho, phi, y = cylindrical(edge, r_pts)
+            ok = np.ones(rec.shape[0], bool)
+            if not rec_only:
+                ok &= (phi0 <= n * np.pi + slack) | (phi0 >= 2 * np.pi - slack)
+            if not src_only:
+                ok &= (phi <= n * np.pi + slack) | (phi >= 2 * np.pi - slack)
+            out |= ok
+    return out
 
 
 def _seen(phi: np.ndarray, n: float) -> np.ndarray:
@@ -250,6 +295,17 @@ def double_edge_paths(
     rec = np.atleast_2d(np.asarray(rec, float))
     src = np.broadcast_to(np.asarray(src, float), rec.shape).copy()
     f_hz = np.atleast_1d(np.asarray(f_hz, float))
+    if rec.shape[0]:  # evaluate only where some combination sees E1 from S and E2 from R (speed)
+        mask = _any_seen(e1, src, rec, src_ground, None, src_only=True) & _any_seen(
+            e2, src, rec, None, None if lateral else rec_ground, rec_only=True
+        )
+        if not mask.all():
+            out_all = np.zeros((4, len(f_hz), rec.shape[0]), complex)
+            if mask.any():
+                out_all[:, :, mask] = double_edge_paths(e1, e2, src[mask], rec[mask], f_hz, c_ref,
+                                                        _subset(src_ground, mask), _subset(rec_ground, mask), legs,
+                                                        lateral)  # fmt: skip
+            return out_all
     k = 2.0 * np.pi * f_hz / c_ref
     leg_fn: LegModel = legs if legs is not None else (lambda a, b: straight_legs(a, b, c_ref))
     n_pts = rec.shape[0]

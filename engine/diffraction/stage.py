@@ -309,7 +309,7 @@ def _leg_model(profile: Any, wind: Any, c_ref: float) -> tuple[LegModel, str]:
 
     def c_eff(p: np.ndarray, e: np.ndarray) -> np.ndarray:
         c = np.asarray(profile.sound_speed(p), float)
-        if code is not None:
+        if code is not None and params is not None:
             c = c + wind_along(code, params, p, np.column_stack([e, np.zeros(len(e))]))
         return c
 
