@@ -13,6 +13,7 @@ from pathlib import Path
 
 from bentray.engine import stages
 from bentray.engine.diffraction.stage import stage_diffraction
+from bentray.engine.diffraction.terrain import stage_terrain_screening
 from bentray.engine.eigenray_stage import merge_into_receivers
 from bentray.engine.executors import Executor, LocalExecutor
 from bentray.engine.media import Media, Wind
@@ -124,6 +125,7 @@ def run_prepared(prepared: Prepared, *, progress: ProgressFn, executor: Executor
     receivers = stages.stage_receivers(job, traced, setup, log)
     report_progress("diffraction", 0.92)
     diffraction = stage_diffraction(job, profile, wind, surfaces, setup, field_arrays, receivers, log)
+    terrain = stage_terrain_screening(job, profile, wind, surfaces, setup, field_arrays, receivers, log)
     shadow = stage_refractive_shadow(job, profile, wind, surfaces, setup, field_arrays, receivers, log)
     report_progress("eigenrays", 0.93)
     arrivals = stages.stage_eigenrays(job, profile, wind, setup, start_cells, fan, log)
@@ -147,6 +149,8 @@ def run_prepared(prepared: Prepared, *, progress: ProgressFn, executor: Executor
         report["eigenrays"] = arrivals.stats
     if diffraction is not None:
         report["diffraction"] = diffraction
+    if terrain is not None:
+        report["terrain_screening"] = terrain
     if shadow is not None:
         report["refractive_shadow"] = shadow
     frame = prepared.frame
