@@ -4,6 +4,7 @@
     bentray sweep JOB.json --param PATH --values V1,V2,... --out DIR [--dask ADDR]
     bentray bench --out DIR [--quick] [--only NAME ...]
     bentray scenes [--resolution medium|high] [--json] [--job NAME]
+    bentray warmup [JOB.json ...] [--no-builtin]
 
 Exit status: 0 success; 2 invalid command line or job file (unreadable, invalid JSON, schema errors,
 scene, medium or cost-model problems and any input error the engine finds, printed one
@@ -120,6 +121,10 @@ def _summary(job: Job, outcome: JobOutcome, written: list[Path], wall_s: float) 
             except (TypeError, ValueError):
                 parts.append(f"{stage} {seconds}")
         lines.append("  timings (s): " + ", ".join(parts))
+    compiled = outcome.report.get("compile_s") or {}
+    if compiled.get("total"):
+        stages = ", ".join(f"{k} {float(v):.1f}" for k, v in compiled.items() if k != "total")
+        lines.append(f"  of which Numba compilation (s): {float(compiled['total']):.1f} ({stages}; once per install)")
     lines.append("  wrote: " + (", ".join(str(p) for p in written) or "nothing"))
     return "\n".join(lines)
 
@@ -331,6 +336,15 @@ def _add_lden(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 COMMANDS.append(_add_lden)
+
+
+def _add_warmup(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    from bentray.clients.warmup_cli import add_warmup  # bentray warmup (fill the numba cache)
+
+    add_warmup(sub)
+
+
+COMMANDS.append(_add_warmup)
 
 
 def build_parser() -> argparse.ArgumentParser:
