@@ -53,11 +53,13 @@ def test_slabs_bit_identical(slabs) -> None:
 
 
 def test_slabs_every_end_status(slabs) -> None:
-    """Short time limits, few reflections and a step limit: each stop condition in both kernels."""
+    """A short time limit, no reflections allowed, then a step limit: each stop condition in both kernels."""
     sc = slabs
-    res = _compare(sc.mesh, sc.origins, sc.directions, sc.start_cells, max_time_s=3.0, max_reflections=1, max_steps=60)
-    counts = res.status_counts()
-    assert counts["time_limit"] and counts["reflection_limit"] and counts["step_limit"] and counts["exited"]
+    short = _compare(sc.mesh, sc.origins, sc.directions, sc.start_cells, max_time_s=0.3, max_reflections=0)
+    counts = short.status_counts()
+    assert counts["time_limit"] and counts["reflection_limit"] and counts["exited"]
+    capped = _compare(sc.mesh, sc.origins, sc.directions, sc.start_cells, max_time_s=3.0, max_steps=60)
+    assert capped.status_counts()["step_limit"] == len(sc.origins)
 
 
 def test_tets_bit_identical_from_an_interior_point_and_a_vertex() -> None:
@@ -73,14 +75,42 @@ def test_tets_bit_identical_from_an_interior_point_and_a_vertex() -> None:
     d = sphere_directions(1200)
     inner = np.nonzero(np.all((tm.points > lo + 40) & (tm.points < hi - 40), axis=1))[0]
     starts = [np.array([97.3, 81.1, 33.7]), tm.points[inner[0]]]  # inside a cell; on a mesh vertex
-    nudged = 0
     for src in starts:
         o = np.tile(src, (len(d), 1))
         cells = locate_points(tm.cells, o)
         res = _compare(tm.cells, o, d, cells, max_time_s=2.0, max_reflections=10)
-        nudged += int(res.nudges.sum())
         assert res.status_counts()["lost"] == 0
-    assert nudged > 0  # the vertex start takes the rare-event paths
+
+
+def test_rare_paths_bit_identical() -> None:
+    """Nudges (a cell with no exit: lost after MAX_NUDGES_IN_A_ROW + 1), grazing launches a micrometre above
+    the ground (slides along it) and a strong downward-refracting gradient (n^2 from 27 to 1): the rare-event
+    paths."""
+    from bentray.engine.constants import BOUNDARY_OPEN, FACE_UNUSED
+    from bentray.engine.mesh.cells import CellMesh
+    from bentray.engine.mesh.slabs import build_slab_mesh, locate_in_slabs
+
+    planes = np.zeros((1, 4, 4))
+    planes[0, 0] = [-1.0, 0.0, 0.0, 0.0]
+    neighbours = np.full((1, 4), FACE_UNUSED, dtype=np.int64)
+    neighbours[0, 0] = BOUNDARY_OPEN
+    one = CellMesh(planes, neighbours, np.full((1, 4), -1, np.int64), np.ones(1), np.zeros((1, 3)), np.zeros((1, 3)),
+                   np.ones(1), np.zeros((1, 4), np.int64))  # fmt: skip
+    nudged = _compare(one, np.array([[1.0, 0, 0]]), np.array([[1.0, 0, 0]]), np.array([0]), max_time_s=1.0)
+    assert nudged.nudges[0] > 0
+    lo, hi = np.array([-50.0, -50.0, 0.0]), np.array([4000.0, 50.0, 2600.0])
+    el = np.radians(np.linspace(-1e-3, 1e-3, 1001))
+    d = np.column_stack([np.cos(el), np.zeros_like(el), np.sin(el)])
+    z = np.concatenate([[0.0], np.geomspace(1e-6, 2600, 200)])
+    mesh = build_slab_mesh(lo, hi, z, lambda zz: 1 + 0.01 * zz)
+    o = np.tile([0, 0, 1e-6], (len(d), 1))
+    _compare(mesh, o, d, locate_in_slabs(z, o), max_time_s=1.0, max_reflections=10)
+    z = np.linspace(0, 2600, 51)
+    mesh = build_slab_mesh(lo, hi, z, lambda zz: 1.0 + 1e-2 * (2600.0 - zz))
+    d = sphere_directions(1001)
+    o = np.tile([0, 0, 10], (len(d), 1))
+    bounced = _compare(mesh, o, d, locate_in_slabs(z, o), max_time_s=10.0, max_reflections=10_000)
+    assert bounced.reflections.sum() > 0
 
 
 def test_desert_terrain_bit_identical() -> None:
