@@ -29,10 +29,11 @@ columns (constants.STATE_* / COUNT_*); COUNT_SAMPLES is 0 (no path recording).
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numba as nb
 import numpy as np
-from llvmlite import ir
+from llvmlite import ir  # type: ignore[import-untyped]
 from numba.core import cgutils, types
 from numba.core.extending import intrinsic
 
@@ -82,15 +83,14 @@ _arc_length = nb.njit(**NJIT_FLAGS)(parabolic.arc_length.py_func)
 _face_exit_parameter = nb.njit(**NJIT_FLAGS)(face_exit_parameter.py_func)
 
 
-@intrinsic
-def _prefetch(typingctx, arr, row, byte_offset):  # type: ignore[no-untyped-def]
+def _prefetch_intrinsic(typingctx, arr, row, byte_offset):
     """Prefetch (read, high locality) the cache line at byte ``byte_offset`` of row ``row`` of ``arr``
     (LLVM's llvm.prefetch; no fault for any address, no value changed)."""
     if not isinstance(arr, types.Array):
         return None
     sig = types.void(arr, row, byte_offset)
 
-    def codegen(context, builder, signature, args):  # type: ignore[no-untyped-def]
+    def codegen(context, builder, signature, args):
         aryty = signature.args[0]
         ary = context.make_array(aryty)(context, builder, args[0])
         zero = context.get_constant(types.intp, 0)
@@ -105,6 +105,9 @@ def _prefetch(typingctx, arr, row, byte_offset):  # type: ignore[no-untyped-def]
         return context.get_dummy_value()
 
     return sig, codegen
+
+
+_prefetch: Any = intrinsic(_prefetch_intrinsic)
 
 
 @nb.njit(**NJIT_FLAGS)
