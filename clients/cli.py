@@ -107,7 +107,7 @@ def _load(job_path: Path) -> Job:
         ) from None
 
 
-def _summary(job: Job, outcome: JobOutcome, written: list[Path], wall_s: float) -> str:
+def _summary(job: Job, outcome: JobOutcome, written: list[Path], wall_s: float, write_s: float = 0.0) -> str:
     trace = outcome.trace
     lines = [f"job {job.name}: {trace.n_rays} rays in {wall_s:.2f} s"]
     counts = {name: n for name, n in trace.status_counts().items() if n}
@@ -125,7 +125,8 @@ def _summary(job: Job, outcome: JobOutcome, written: list[Path], wall_s: float) 
     if compiled.get("total"):
         stages = ", ".join(f"{k} {float(v):.1f}" for k, v in compiled.items() if k != "total")
         lines.append(f"  of which Numba compilation (s): {float(compiled['total']):.1f} ({stages}; once per install)")
-    lines.append("  wrote: " + (", ".join(str(p) for p in written) or "nothing"))
+    sizes = [f"{p} ({p.stat().st_size / 1e6:.1f} MB)" if p.is_file() else str(p) for p in written]
+    lines.append(f"  wrote in {write_s:.2f} s: " + (", ".join(sizes) or "nothing"))
     return "\n".join(lines)
 
 
@@ -176,8 +177,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise CommandError(f"{job_path}: invalid job:\n{exc}", code=2) from None
     finally:
         progress.close()
+    t_write = time.perf_counter()
     written = write_outcome(outcome, list(job.outputs), out_dir)
-    print(_summary(job, outcome, written, time.perf_counter() - t0))
+    write_s = time.perf_counter() - t_write
+    print(_summary(job, outcome, written, time.perf_counter() - t0, write_s))
     return 0
 
 
