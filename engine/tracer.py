@@ -36,9 +36,10 @@ from bentray.engine.wind import WIND_NONE, check_wind
 
 KERNELS = ("auto", "generic", "lean")
 # Lean-kernel prefetch level (kernels/lean.py: 0 none, 1 the next cell once its face is known, 2 also every
-# neighbour on cell entry). `bentray bench --only throughput` times all three; measured (10,000 rays, one core,
-# 2 interleaved rounds, load 4.2): desert p0 1.43x the generic kernel, p1 1.25x, p2 1.30x; A-LD slabs p0 1.24x,
-# p1 0.99x, p2 0.82x. The prefetches cost more than they hide here, so none by default.
+# neighbour on cell entry). `bentray bench --only throughput` times all three. Measured (10,000 rays, one core,
+# 2 interleaved rounds, shared machine): desert p0/p1/p2 1.43/1.25/1.30x the generic kernel at load 4.2, then
+# 1.29/1.51/2.02x at load 6-10; A-LD slabs 1.24/0.99/0.82x, then 1.23/1.15/1.10x. Inconclusive on the desert
+# under that load and a loss on slabs both times, so none by default until a quiet machine decides.
 LEAN_PREFETCH = 0
 
 
