@@ -31,7 +31,7 @@ MAX_FIELD_POINTS = 4  # field grid points per axis in a miniature
 def miniature(spec: dict[str, Any]) -> dict[str, Any]:
     """A copy of job JSON ``spec`` with at most MAX_COUNT elevations and azimuths, a field grid of at most
     MAX_FIELD_POINTS per axis, outputs kept; the same types reach every kernel."""
-    out = json.loads(json.dumps(spec))
+    out: dict[str, Any] = json.loads(json.dumps(spec))
     rays = out.get("rays") or {}
     for axis in ("elevation_deg", "azimuth_deg"):
         if isinstance(rays.get(axis), dict) and "count" in rays[axis]:

@@ -17,10 +17,10 @@ import numpy as np
 
 from bentray.engine import beam_field
 from bentray.engine import field as field_stage
+from bentray.engine.compile_time import compile_timer
 from bentray.engine.constants import CURVE_QUANTITY
 from bentray.engine.eigenray_stage import ArrivalTable, eigenray_decision, run_eigenrays
 from bentray.engine.eigenrays import RayModel
-from bentray.engine.compile_time import compile_timer
 from bentray.engine.errors import JobInputError
 from bentray.engine.executors import Executor
 from bentray.engine.field_buffers import FieldBuffers

@@ -2,8 +2,9 @@
 
 The field kernel reads q2tab[material, band, ...] without a bounds check; a FieldBuffers built with fewer
 materials than the mesh's reflecting faces use used to read foreign memory inside ``trace()``: with the
-check bypassed, material index 100,000,000 ends the process with SIGSEGV (exit -11, measured). The wrapper now refuses such a call with a MaterialTableError naming both counts. The
-trace runs in a subprocess, so a crash fails the test instead of killing pytest.
+check bypassed, material index 100,000,000 ends the process with SIGSEGV (exit -11, measured). The wrapper
+now refuses such a call with a MaterialTableError naming both counts. The trace runs in a subprocess, so a
+crash fails the test instead of killing pytest.
 """
 
 from __future__ import annotations
