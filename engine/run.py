@@ -138,6 +138,8 @@ def run_prepared(prepared: Prepared, *, progress: ProgressFn, executor: Executor
         media=media,
         result=traced.result,
         timings=log.timings,
+        compile_s=log.compile_s,
+        compiled_functions=log.compiled_functions,
         stages=log.stages,
         batches={"count": traced.n_batches, "batch_rays": job.solver.batch_rays, "executor": runner.name},
         restarts=traced.restarts,

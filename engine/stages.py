@@ -17,6 +17,7 @@ import numpy as np
 
 from bentray.engine import beam_field
 from bentray.engine import field as field_stage
+from bentray.engine.compile_time import compile_timer
 from bentray.engine.constants import CURVE_QUANTITY
 from bentray.engine.eigenray_stage import ArrivalTable, eigenray_decision, run_eigenrays
 from bentray.engine.eigenrays import RayModel
@@ -67,13 +68,21 @@ class StageLog:
 
     timings: dict[str, float] = field(default_factory=dict)
     stages: dict[str, str] = field(default_factory=dict)
+    compile_s: dict[str, float] = field(default_factory=dict)  # Numba compilation inside each stage (s)
+    compiled_functions: int = 0
 
     @contextmanager
     def timed(self, name: str) -> Iterator[None]:
-        """Time the ``with`` body as ``timings[name]`` (seconds)."""
+        """Time the ``with`` body as ``timings[name]`` (seconds, compilation included) and the Numba
+        compilation inside it as ``compile_s[name]`` (engine.compile_time; stages that compiled nothing
+        are left out)."""
         t0 = time.perf_counter()
-        yield
+        with compile_timer() as ct:
+            yield
         self.timings[name] = time.perf_counter() - t0
+        if ct.functions:
+            self.compile_s[name] = ct.seconds
+            self.compiled_functions += ct.functions
 
 
 class LaunchFan(NamedTuple):

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any, NamedTuple
 
 import numba
@@ -27,10 +28,19 @@ from bentray.engine.constants import (
 from bentray.engine.errors import MaterialTableError
 from bentray.engine.field_buffers import REFLECTION_RECORD_CAP, FieldBuffers, no_field_tuple
 from bentray.engine.kernels.field import FieldAcc
+from bentray.engine.kernels.lean import trace_block_lean
 from bentray.engine.kernels.traverse import PAR_OUT_SIZE, PathBuffers, RayParams, Rays, trace_rays
 from bentray.engine.mesh.cells import CellMesh
 from bentray.engine.result import RayPaths, TraceResult
-from bentray.engine.wind import check_wind
+from bentray.engine.wind import WIND_NONE, check_wind
+
+KERNELS = ("auto", "generic", "lean")
+# Lean-kernel prefetch level (kernels/lean.py: 0 none, 1 the next cell once its face is known, 2 also every
+# neighbour on cell entry). `bentray bench --only throughput` times all three. Measured (10,000 rays, one core,
+# 2 interleaved rounds, shared machine): desert p0/p1/p2 1.43/1.25/1.30x the generic kernel at load 4.2, then
+# 1.29/1.51/2.02x at load 6-10; A-LD slabs 1.24/0.99/0.82x, then 1.23/1.15/1.10x. Inconclusive on the desert
+# under that load and a loss on slabs both times, so none by default until a quiet machine decides.
+LEAN_PREFETCH = 0
 
 
 def path_capacity(path_samples: int, max_reflections: int) -> int:
@@ -157,6 +167,73 @@ def _trace_result(rays: Rays, paths: RayPaths | None, with_reflections: bool, pa
     )
 
 
+def lean_applies(
+    curve: str,
+    path_samples: int,
+    field: FieldBuffers | BeamBuffers | None,
+    wind_code: int,
+    paraxial: bool,
+    record_reflections: bool,
+) -> bool:
+    """Whether a trace is the lean kernel's case: parabolic curve, no path recording, no field or beams,
+    no wind, no paraxial state, no reflection records."""
+    plain = path_samples <= 0 and field is None and wind_code == WIND_NONE
+    return curve == "parabolic" and plain and not paraxial and not record_reflections
+
+
+def lean_blocks(n: int, threads: int, rays_per_block: int = 256) -> list[tuple[int, int]]:
+    """[lo, hi) ray ranges for the lean kernel's threads: contiguous blocks of about ``rays_per_block`` rays
+    (neighbouring launch directions together), at least one per ray batch, none when n is 0. The blocks are
+    handed to ``threads`` workers in order, so a thread that finishes early takes the next block."""
+    if n <= 0:
+        return []
+    if threads <= 1:
+        return [(0, n)]
+    size = max(1, min(rays_per_block, -(-n // threads)))
+    return [(a, min(a + size, n)) for a in range(0, n, size)]
+
+
+def trace_lean(
+    mesh: CellMesh,
+    c_ref: float,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    start_cells: np.ndarray,
+    *,
+    max_time_s: float,
+    max_reflections: int,
+    max_steps: int = 10_000_000,
+    prefetch: int = LEAN_PREFETCH,
+) -> TraceResult:
+    """The plain parabolic trace on the lean kernel (kernels/lean.py): the final states of :func:`trace`
+    bit for bit, without paths, field, wind or paraxial state. Arguments as in :func:`trace`; prefetch :
+    0, 1 or 2 (LEAN_PREFETCH). Returns a TraceResult with launch angles NaN (the caller fills them in)."""
+    origins, directions, start_cells = ray_inputs("parabolic", origins, directions, start_cells, max_time_s)
+    if prefetch not in (0, 1, 2):
+        raise ValueError(f"prefetch must be 0, 1 or 2, got {prefetch!r}")
+    n = origins.shape[0]
+    rays = Rays(
+        origins,
+        directions,
+        start_cells,
+        np.zeros((n, 0)),
+        np.zeros((n, 1)),
+        np.zeros((n, 1), dtype=np.int64),
+        np.zeros((n, STATE_SIZE)),
+        np.zeros((n, COUNT_SIZE), dtype=np.int64),
+        np.full((0, PAR_OUT_SIZE), np.nan),
+    )
+    limits = (float(max_time_s), int(max_reflections), int(max_steps), int(prefetch))
+    args = (mesh, float(c_ref), limits, origins, directions, start_cells, rays.out_state, rays.out_counts)
+    blocks = lean_blocks(n, int(numba.get_num_threads()))
+    if len(blocks) <= 1:
+        trace_block_lean(*args, 0, n)
+    else:  # contiguous blocks of neighbouring rays, one per thread (the kernel releases the GIL)
+        with ThreadPoolExecutor(max_workers=min(len(blocks), int(numba.get_num_threads()))) as pool:
+            list(pool.map(lambda span: trace_block_lean(*args, span[0], span[1]), blocks))
+    return _trace_result(rays, None, False, False)
+
+
 def trace(
     mesh: CellMesh,
     curve: str,
@@ -173,6 +250,7 @@ def trace(
     wind: tuple[int, np.ndarray] | None = None,
     paraxial: bool = False,
     record_reflections: bool = False,
+    kernel: str = "auto",
 ) -> TraceResult:
     """Trace rays through ``mesh`` with the given curve kind.
 
@@ -189,10 +267,28 @@ def trace(
         without a field (eigenray amplitudes; any curve).
     paraxial : also return each ray's final paraxial state (TraceResult.paraxial, (n, 13): X_el, X_az,
         P_el, P_az, |p|; parabolic curve only; docs/physics.md §10).
+    kernel : "auto" (the lean kernel, kernels/lean.py, for a plain parabolic trace: no paths, field, wind,
+        paraxial state or reflection records; the generic one otherwise), "generic" or "lean" (ValueError
+        when the trace is not the lean kernel's case). Both give bit-identical final states.
     Returns a TraceResult with launch angles left at NaN (the caller fills them in).
     """
+    if kernel not in KERNELS:
+        raise ValueError(f"kernel must be one of {KERNELS}, got {kernel!r}")
     origins, directions, start_cells = ray_inputs(curve, origins, directions, start_cells, max_time_s)
     wind_code, wind_params = check_wind(wind)
+    if kernel != "generic" and lean_applies(curve, path_samples, field, wind_code, paraxial, record_reflections):
+        return trace_lean(
+            mesh,
+            c_ref,
+            origins,
+            directions,
+            start_cells,
+            max_time_s=max_time_s,
+            max_reflections=max_reflections,
+            max_steps=max_steps,
+        )
+    if kernel == "lean":
+        raise ValueError("kernel='lean' traces only the parabolic curve without paths, field, wind or paraxial state")
     n = origins.shape[0]
     record = path_samples > 0
     path_buf = _path_buffers(n, path_samples, max_reflections)
