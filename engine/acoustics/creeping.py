@@ -80,6 +80,8 @@ _E_M60 = np.exp(-1j * np.pi / 3.0)  # e^{-i pi/3}
 _E_P60 = np.exp(1j * np.pi / 3.0)
 DEFAULT_MODES = 60
 _ROOT_RESIDUAL = 1e-9
+N_KEPT = 6  # modes that must be followed to the real profile; higher ones may be dropped
+NEWTON_TOL = 1e-8  # root steps below this fraction of l^2 end the Newton iteration (kappa^2 spacing ~ l^2)
 TOP_EXPONENT = 12.0  # e-folds of growth of a mode above which its radiation condition is set
 
 
@@ -108,7 +110,7 @@ class CreepingModes:
 
     zeta (n_modes,) complex roots of Ai' + q Ai; kappa (n_modes,) horizontal wavenumbers (1/m, Im > 0);
     weight (n_modes,) i pi / N_n (1/m); l (1/m) the Airy scale (k0^2 a)^(1/3); k0 (1/m); a (1/m);
-    residual: max relative residual |Ai' + q Ai| / ((sqrt|zeta| + |q|) |Ai| + |Ai'|) of the roots.
+    residual: max relative residual |Ai' + q Ai| / ((1 + |q|) (|Ai| + |Ai'| / sqrt(1 + |zeta|))) of the roots.
     """
 
     zeta: np.ndarray
@@ -165,7 +167,7 @@ def creeping_modes(
     zeta = np.asarray(zeta, complex)
     ai, aip, _, _ = airy(zeta)
     residual = float(
-        np.max(np.abs(aip + q * ai) / ((np.sqrt(np.abs(zeta)) + abs(q)) * np.abs(ai) + np.abs(aip) + 1e-300))
+        np.max(np.abs(aip + q * ai) / ((1.0 + abs(q)) * (np.abs(ai) + np.abs(aip) / np.sqrt(1.0 + np.abs(zeta)))))
     )
     order = np.argsort(np.abs(zeta))
     gaps = np.abs(np.diff(zeta[order]))
@@ -375,7 +377,8 @@ def _profile_modes(
     :func:`creeping_modes`) along k^2_s = (1 - s) k^2_lin + s k^2, s: 0 -> 1, with Newton at each step
     (analytic mismatch, finite-difference derivative); a step is accepted when every mode converged,
     none merged and none moved by more than 0.3 of its distance to the nearest other root, else
-    halved (RuntimeError below 1e-4).
+    halved; once the step is below 1/32, modes beyond the first N_KEPT that fail are dropped instead
+    (RuntimeError when the step falls below 1e-4).
     """
     if not (frequency_hz > 0 and z_top > 0 and guess_a > 0 and n_grid >= 16):
         raise ValueError("frequency_hz, z_top and guess_a must be > 0, n_grid >= 16")
@@ -405,29 +408,34 @@ def _profile_modes(
         pt, dt = _at_top(_numerov(k2, h, k2v, beta), h, idx)
         return _mismatch(pt, dt, k2t, gt, k2v)
 
-    def newton(k2v: np.ndarray, s: float) -> tuple[np.ndarray, bool]:
+    def newton(k2v: np.ndarray, s: float, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-mode Newton; returns the roots and which converged (finite, step <= NEWTON_TOL l^2)."""
+        done = np.zeros(k2v.size, bool)
         for _ in range(15):
             f0 = mismatch(k2v, s, idx)
             step_h = 1e-7 * scale
             df = (mismatch(k2v + step_h, s, idx) - f0) / step_h
             step = f0 / df
-            if not np.all(np.isfinite(step)):
-                return k2v, False
-            k2v = k2v - step
-            if np.all(np.abs(step) <= 1e-10 * scale):
-                return k2v, True
-        return k2v, False
+            good = np.isfinite(step)
+            k2v = np.where(good & ~done, k2v - np.where(good, step, 0.0), k2v)
+            done |= good & (np.abs(step) <= NEWTON_TOL * scale)
+            if done.all():
+                break
+        return k2v, done
 
     kap2 = lin.kappa**2
     s_now, ds, tries = 0.0, 1.0 / n_continuation, 0
     while s_now < 1.0 and tries < 200:
         tries += 1
         s_next = min(1.0, s_now + ds)
-        trial, done = newton(kap2, s_next)
+        trial, done = newton(kap2, s_next, idx)
         spacing = np.min(np.abs(kap2[:, None] - kap2[None, :]) + np.eye(kap2.size) * 1e300, axis=1)
-        if done and np.all(np.abs(trial - kap2) < 0.3 * spacing):
+        fine = done & (np.abs(trial - kap2) < 0.3 * spacing)
+        if fine.all():
             kap2, s_now = trial, s_next
             ds = min(2.0 * ds, 0.5)
+        elif ds < 1.0 / 32.0 and fine[:N_KEPT].all():
+            kap2, idx = kap2[fine], idx[fine]  # drop the higher modes that cannot be followed
         else:
             ds *= 0.5
             if ds < 1e-4:
