@@ -255,7 +255,16 @@ def limiting_ray(c_of_h: SoundSpeedOfHeight, h_max: float, n_intervals: int = 25
         raise ValueError("c_of_h must return finite sound speeds > 0 (m/s), one per height")
     c_ground = float(cp[0])
     flat = np.flatnonzero(cp < c_ground * (1.0 - 1e-12))
-    h_g = 0.0 if flat.size == 0 else float(probe[max(flat[0] - 1, 0)])
+    h_g = 0.0
+    if flat.size and flat[0] > 1:  # c stays at its ground value up to some height: bisect for its top
+        lo, hi = float(probe[flat[0] - 1]), float(probe[flat[0]])
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            if float(np.asarray(c_of_h(np.array([mid])), float)[0]) < c_ground * (1.0 - 1e-12):
+                hi = mid
+            else:
+                lo = mid
+        h_g = lo
     upward = flat.size > 0 and bool(np.all(cp[flat[0] :] < c_ground * (1.0 - 1e-12)))
     u_max = math.sqrt(max(h_max - h_g, 0.0))
     edges = np.linspace(0.0, u_max, n_intervals + 1)
