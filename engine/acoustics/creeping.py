@@ -259,11 +259,11 @@ def limiting_ray(c_of_h: SoundSpeedOfHeight, h_max: float, n_intervals: int = 25
     if flat.size and flat[0] > 1:  # c stays at its ground value up to some height: bisect for its top
         lo, hi = float(probe[flat[0] - 1]), float(probe[flat[0]])
         for _ in range(60):
-            mid = 0.5 * (lo + hi)
-            if float(np.asarray(c_of_h(np.array([mid])), float)[0]) < c_ground * (1.0 - 1e-12):
-                hi = mid
+            half_way = 0.5 * (lo + hi)
+            if float(np.asarray(c_of_h(np.array([half_way])), float)[0]) < c_ground * (1.0 - 1e-12):
+                hi = half_way
             else:
-                lo = mid
+                lo = half_way
         h_g = lo
     upward = flat.size > 0 and bool(np.all(cp[flat[0] :] < c_ground * (1.0 - 1e-12)))
     u_max = math.sqrt(max(h_max - h_g, 0.0))
@@ -319,7 +319,9 @@ class ProfileModes:
     k0: float
 
 
-def _v_top(k2_top: float, gamma: float, kappa2: np.ndarray, dz: np.ndarray | float) -> np.ndarray:
+def _v_top(
+    k2_top: np.ndarray | float, gamma: np.ndarray | float, kappa2: np.ndarray, dz: np.ndarray | float
+) -> np.ndarray:
     """Airy argument of the linear-k^2 tail, dz = z - z_top (m): e^{-i pi/3} (g^(1/3) dz + (k2_top -
     kappa^2) / g^(2/3))."""
     g3 = np.cbrt(gamma)
