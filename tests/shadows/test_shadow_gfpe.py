@@ -7,7 +7,8 @@ c = 340 - 0.1 z. Compared: the points ``refractive_shadow_energy`` marks as in t
 where the GFPE is above its floor (at most 80 dB below the free field; deeper, its absorbing layer's
 residual reflection sets the level). Asserted: mean and max |difference| <= 5 dB (the issue's bound).
 Measured (mean / max |difference|, compared points): log 100 Hz 0.43 / 0.86 dB (462), log 500 Hz
-2.41 / 3.54 dB (193), linear 100 Hz 0.07 / 0.18 dB (392), linear 500 Hz 0.17 / 0.37 dB (263).
+2.41 / 3.54 dB (193), linear 100 Hz 0.07 / 0.18 dB (392), linear 500 Hz 0.17 / 0.37 dB (263), linear
+1 kHz 0.19 / 0.86 dB (211); log 1 kHz 21.2 / 28.7 dB (104): a strict xfail (docs/physics.md §14).
 The lit zone: ``applies`` is False exactly before the ray-theory shadow boundary (linear c: the grazing
 circle, closed form), every returned energy is 0 there, and a downward-refracting profile gets none.
 """
@@ -48,6 +49,12 @@ CASES = [
     pytest.param("log_up", 500.0, marks=pytest.mark.slow),
     ("linear_up", 100.0),
     pytest.param("linear_up", 500.0, marks=pytest.mark.slow),
+    pytest.param(
+        "log_up",
+        1000.0,
+        marks=(pytest.mark.slow, pytest.mark.xfail(strict=True, reason="21 dB mean off: docs/physics.md §14")),
+    ),
+    pytest.param("linear_up", 1000.0, marks=pytest.mark.slow),
 ]
 
 
@@ -58,7 +65,7 @@ def test_shadow_levels_within_5_db_of_the_gfpe(name, f):
     tl = -10.0 * np.log10(np.where(sf.applies, sf.creeping[0], np.nan))
     ok = sf.applies & (ref <= 20.0 * np.log10(XS) + 80.0)
     d = np.abs(tl - ref)[ok]
-    assert ok.sum() >= 150, ok.sum()
+    assert ok.sum() >= 100, ok.sum()
     assert sf.method == ("profile",)
     assert d.mean() <= 5.0 and d.max() <= 5.0, (d.mean(), d.max(), ok.sum())
 
