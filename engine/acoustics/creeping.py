@@ -34,16 +34,17 @@ Ai + (1/q) Ai' from the soft zeros a_n with 1/q continued from 0 (|q| > 1); the 
 log form (``airye`` scaling where Re w >= 0) so that heights of hundreds of metres at kHz neither
 overflow nor underflow.
 
-Fit to a general stratified c(z) (:func:`fit_linear_k2`): ``a`` is chosen so that the model's
-limiting ray -- the ray that grazes the ground, x(h) = 2 sqrt(h / a) in linear k^2 -- reaches the
-source and receiver heights over the same total horizontal distance as the limiting ray of the real
-profile (Snell's law, quadrature): a = 4 (sqrt z_s + sqrt z_r)^2 / (X(z_s) + X(z_r))^2. So the model's
-shadow boundary is the ray-theory one (where the beam field ends), and the profile is sampled exactly
-where the shadow's geometry is decided: from the ground up to the source and receiver heights, each
-weighted as the limiting ray weights it (1/sqrt of the sound-speed drop). For a log profile
-c = c0 + b ln(1 + z/z0) the fit depends on z_s and z_r, not on the range: the range dependence of the
-real shadow (the creeping wave sees the strong near-ground gradient b/z0) is what the fit leaves out,
-measured against the GFPE in tests/shadows.
+The real profile (:func:`profile_modes`): the same residue series with height functions of the sampled
+c(h) itself (Numerov upward from the ground, each mode continued above its own top height as linear
+k^2 with the local gradient), roots continued from the linear-k^2 modes of :func:`creeping_layer_guess`.
+Validated against the closed form in linear k^2 and, for c = 340 - ln(1 + z), against the GFPE at
+100 Hz (robust) and 500 Hz (depends on the top-height cap: docs/physics.md §14, open).
+
+Fallback fit (:func:`fit_linear_k2`): ``a`` such that the model's limiting ray -- x(h) = 2 sqrt(h / a)
+in linear k^2 -- reaches the source and receiver heights over the real profile's shadow-boundary
+distance X(z_s) + X(z_r): a = 4 (sqrt z_s + sqrt z_r)^2 / (X(z_s) + X(z_r))^2. The model's shadow
+boundary is then the ray-theory one and the fit depends on z_s and z_r, not on the range; for a log
+profile it is far too deep far into the shadow (docs/physics.md §14), hence only a fallback.
 """
 
 from __future__ import annotations
