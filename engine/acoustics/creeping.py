@@ -34,16 +34,17 @@ Ai + (1/q) Ai' from the soft zeros a_n with 1/q continued from 0 (|q| > 1); the 
 log form (``airye`` scaling where Re w >= 0) so that heights of hundreds of metres at kHz neither
 overflow nor underflow.
 
-Fit to a general stratified c(z) (:func:`fit_linear_k2`): ``a`` is chosen so that the model's
-limiting ray -- the ray that grazes the ground, x(h) = 2 sqrt(h / a) in linear k^2 -- reaches the
-source and receiver heights over the same total horizontal distance as the limiting ray of the real
-profile (Snell's law, quadrature): a = 4 (sqrt z_s + sqrt z_r)^2 / (X(z_s) + X(z_r))^2. So the model's
-shadow boundary is the ray-theory one (where the beam field ends), and the profile is sampled exactly
-where the shadow's geometry is decided: from the ground up to the source and receiver heights, each
-weighted as the limiting ray weights it (1/sqrt of the sound-speed drop). For a log profile
-c = c0 + b ln(1 + z/z0) the fit depends on z_s and z_r, not on the range: the range dependence of the
-real shadow (the creeping wave sees the strong near-ground gradient b/z0) is what the fit leaves out,
-measured against the GFPE in tests/shadows.
+The real profile (:func:`profile_modes`): the same residue series with height functions of the sampled
+c(h) itself (Numerov upward from the ground, each mode continued above its own top height as linear
+k^2 with the local gradient), roots continued from the linear-k^2 modes of :func:`creeping_layer_guess`.
+Validated against the closed form in linear k^2 and, for c = 340 - ln(1 + z), against the GFPE at
+100 Hz (robust) and 500 Hz (depends on the top-height cap: docs/physics.md §15, open).
+
+Fallback fit (:func:`fit_linear_k2`): ``a`` such that the model's limiting ray -- x(h) = 2 sqrt(h / a)
+in linear k^2 -- reaches the source and receiver heights over the real profile's shadow-boundary
+distance X(z_s) + X(z_r): a = 4 (sqrt z_s + sqrt z_r)^2 / (X(z_s) + X(z_r))^2. The model's shadow
+boundary is then the ray-theory one and the fit depends on z_s and z_r, not on the range; for a log
+profile it is far too deep far into the shadow (docs/physics.md §15), hence only a fallback.
 """
 
 from __future__ import annotations
@@ -80,6 +81,8 @@ _E_M60 = np.exp(-1j * np.pi / 3.0)  # e^{-i pi/3}
 _E_P60 = np.exp(1j * np.pi / 3.0)
 DEFAULT_MODES = 60
 _ROOT_RESIDUAL = 1e-9
+N_KEPT = 6  # modes that must be followed to the real profile; higher ones may be dropped
+NEWTON_TOL = 1e-8  # root steps below this fraction of l^2 end the Newton iteration (kappa^2 spacing ~ l^2)
 TOP_EXPONENT = 12.0  # e-folds of growth of a mode above which its radiation condition is set
 
 
@@ -108,7 +111,7 @@ class CreepingModes:
 
     zeta (n_modes,) complex roots of Ai' + q Ai; kappa (n_modes,) horizontal wavenumbers (1/m, Im > 0);
     weight (n_modes,) i pi / N_n (1/m); l (1/m) the Airy scale (k0^2 a)^(1/3); k0 (1/m); a (1/m);
-    residual: max relative residual |Ai' + q Ai| / ((sqrt|zeta| + |q|) |Ai| + |Ai'|) of the roots.
+    residual: max relative residual |Ai' + q Ai| / ((1 + |q|) (|Ai| + |Ai'| / sqrt(1 + |zeta|))) of the roots.
     """
 
     zeta: np.ndarray
@@ -165,7 +168,7 @@ def creeping_modes(
     zeta = np.asarray(zeta, complex)
     ai, aip, _, _ = airy(zeta)
     residual = float(
-        np.max(np.abs(aip + q * ai) / ((np.sqrt(np.abs(zeta)) + abs(q)) * np.abs(ai) + np.abs(aip) + 1e-300))
+        np.max(np.abs(aip + q * ai) / ((1.0 + abs(q)) * (np.abs(ai) + np.abs(aip) / np.sqrt(1.0 + np.abs(zeta)))))
     )
     order = np.argsort(np.abs(zeta))
     gaps = np.abs(np.diff(zeta[order]))
@@ -253,7 +256,16 @@ def limiting_ray(c_of_h: SoundSpeedOfHeight, h_max: float, n_intervals: int = 25
         raise ValueError("c_of_h must return finite sound speeds > 0 (m/s), one per height")
     c_ground = float(cp[0])
     flat = np.flatnonzero(cp < c_ground * (1.0 - 1e-12))
-    h_g = 0.0 if flat.size == 0 else float(probe[max(flat[0] - 1, 0)])
+    h_g = 0.0
+    if flat.size and flat[0] > 1:  # c stays at its ground value up to some height: bisect for its top
+        lo, hi = float(probe[flat[0] - 1]), float(probe[flat[0]])
+        for _ in range(60):
+            half_way = 0.5 * (lo + hi)
+            if float(np.asarray(c_of_h(np.array([half_way])), float)[0]) < c_ground * (1.0 - 1e-12):
+                hi = half_way
+            else:
+                lo = half_way
+        h_g = lo
     upward = flat.size > 0 and bool(np.all(cp[flat[0] :] < c_ground * (1.0 - 1e-12)))
     u_max = math.sqrt(max(h_max - h_g, 0.0))
     edges = np.linspace(0.0, u_max, n_intervals + 1)
@@ -308,7 +320,9 @@ class ProfileModes:
     k0: float
 
 
-def _v_top(k2_top: float, gamma: float, kappa2: np.ndarray, dz: np.ndarray | float) -> np.ndarray:
+def _v_top(
+    k2_top: np.ndarray | float, gamma: np.ndarray | float, kappa2: np.ndarray, dz: np.ndarray | float
+) -> np.ndarray:
     """Airy argument of the linear-k^2 tail, dz = z - z_top (m): e^{-i pi/3} (g^(1/3) dz + (k2_top -
     kappa^2) / g^(2/3))."""
     g3 = np.cbrt(gamma)
@@ -375,7 +389,8 @@ def _profile_modes(
     :func:`creeping_modes`) along k^2_s = (1 - s) k^2_lin + s k^2, s: 0 -> 1, with Newton at each step
     (analytic mismatch, finite-difference derivative); a step is accepted when every mode converged,
     none merged and none moved by more than 0.3 of its distance to the nearest other root, else
-    halved (RuntimeError below 1e-4).
+    halved; once the step is below 1/32, modes beyond the first N_KEPT that fail are dropped instead
+    (RuntimeError when the step falls below 1e-4).
     """
     if not (frequency_hz > 0 and z_top > 0 and guess_a > 0 and n_grid >= 16):
         raise ValueError("frequency_hz, z_top and guess_a must be > 0, n_grid >= 16")
@@ -405,29 +420,34 @@ def _profile_modes(
         pt, dt = _at_top(_numerov(k2, h, k2v, beta), h, idx)
         return _mismatch(pt, dt, k2t, gt, k2v)
 
-    def newton(k2v: np.ndarray, s: float) -> tuple[np.ndarray, bool]:
+    def newton(k2v: np.ndarray, s: float, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per-mode Newton; returns the roots and which converged (finite, step <= NEWTON_TOL l^2)."""
+        done = np.zeros(k2v.size, bool)
         for _ in range(15):
             f0 = mismatch(k2v, s, idx)
             step_h = 1e-7 * scale
             df = (mismatch(k2v + step_h, s, idx) - f0) / step_h
             step = f0 / df
-            if not np.all(np.isfinite(step)):
-                return k2v, False
-            k2v = k2v - step
-            if np.all(np.abs(step) <= 1e-10 * scale):
-                return k2v, True
-        return k2v, False
+            good = np.isfinite(step)
+            k2v = np.where(good & ~done, k2v - np.where(good, step, 0.0), k2v)
+            done |= good & (np.abs(step) <= NEWTON_TOL * scale)
+            if done.all():
+                break
+        return k2v, done
 
     kap2 = lin.kappa**2
     s_now, ds, tries = 0.0, 1.0 / n_continuation, 0
     while s_now < 1.0 and tries < 200:
         tries += 1
         s_next = min(1.0, s_now + ds)
-        trial, done = newton(kap2, s_next)
+        trial, done = newton(kap2, s_next, idx)
         spacing = np.min(np.abs(kap2[:, None] - kap2[None, :]) + np.eye(kap2.size) * 1e300, axis=1)
-        if done and np.all(np.abs(trial - kap2) < 0.3 * spacing):
+        fine = done & (np.abs(trial - kap2) < 0.3 * spacing)
+        if fine.all():
             kap2, s_now = trial, s_next
             ds = min(2.0 * ds, 0.5)
+        elif ds < 1.0 / 32.0 and fine[:N_KEPT].all():
+            kap2, idx = kap2[fine], idx[fine]  # drop the higher modes that cannot be followed
         else:
             ds *= 0.5
             if ds < 1e-4:

@@ -6,7 +6,8 @@ points it returns, per frequency, the energy re the free field at 1 m of
 - the creeping-wave field: the residue series of the job's effective sound-speed profile over impedance
   ground (engine/acoustics/creeping.py: Numerov height functions of the real profile, roots continued
   from the linear-k^2 Airy model; the linear-k^2 closed form fitted to the limiting ray when that
-  continuation fails, ``ShadowField.method``), and
+  continuation fails, ``ShadowField.method``; accuracy and the open top-height question: docs/physics.md
+  §15), and
 - the turbulent scattering into the shadow (engine/acoustics/scattering.py) when the job has a
   ``turbulence`` key, added incoherently,
 
