@@ -333,6 +333,15 @@ def _add_lden(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
 COMMANDS.append(_add_lden)
 
 
+def _add_render(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    from bentray.clients.render_cli import add_render  # bentray render (a camera through the media mesh)
+
+    add_render(sub)
+
+
+COMMANDS.append(_add_render)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="bentray", description="Outdoor-acoustics curved-ray engine.")
     parser.add_argument("--version", action="version", version=f"bentray {bentray.__version__}")

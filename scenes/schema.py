@@ -30,6 +30,7 @@ from pydantic_core import PydanticCustomError
 
 from bentray.engine.errors import BentrayError
 from bentray.scenes.bounds import MAX_LENGTH_M, MIN_LENGTH_M, Coord, Vec3
+from bentray.scenes.camera_models import Camera
 from bentray.scenes.crs import crs_errors
 from bentray.scenes.field_models import MAX_COHERENT_FIELD_POINTS, FieldSpec
 from bentray.scenes.ground_zones import GroundZonesSpec
@@ -390,6 +391,9 @@ class Solver(_Model):
     tolerance: float | None = Field(default=None, ge=1e-14, lt=1)
     media: Literal["mesh", "exact"] | None = None
     batch_rays: int = Field(default=DEFAULT_BATCH_RAYS, ge=1, le=MAX_TOTAL_RAYS)
+    # where the analytic traversal runs: "cuda" needs numba-cuda and a device (the gpu extra), "auto" picks
+    # cuda when a device is present and the job is large enough (engine/gpu/device.py, AUTO_MIN_RAYS)
+    device: Literal["cpu", "cuda", "auto"] = "cpu"
 
     @property
     def is_baseline(self) -> bool:
@@ -483,6 +487,7 @@ class Job(_Model):
     field: FieldSpec | None = None
     receivers: list[Receiver] = Field(default_factory=list, max_length=MAX_RECEIVERS)
     eigenrays: EigenraySpec = Field(default_factory=EigenraySpec)
+    camera: Camera | None = None  # bentray render: a pinhole camera through the media mesh (camera_models.py)
 
     @field_validator("name")
     @classmethod
