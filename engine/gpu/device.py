@@ -30,6 +30,7 @@ def simulator_enabled() -> bool:
 def cuda_status() -> tuple[bool, str]:
     """(usable, why): whether the CUDA kernel can run here (a device, or the simulator), and a sentence."""
     try:
+        import numba_cuda  # noqa: F401  (the package, not numba's deprecated built-in target)
         from numba import cuda
     except ImportError as exc:  # numba-cuda (the gpu extra) missing
         return False, f"numba-cuda is not installed (pip install 'bentray[gpu]'): {exc}"
@@ -39,7 +40,10 @@ def cuda_status() -> tuple[bool, str]:
         if cuda.is_available():
             dev = cuda.get_current_device()
             name = dev.name.decode() if isinstance(dev.name, bytes) else str(dev.name)
-            return True, f"CUDA device {name} (compute capability {dev.compute_capability[0]}.{dev.compute_capability[1]})"
+            return (
+                True,
+                f"CUDA device {name} (compute capability {dev.compute_capability[0]}.{dev.compute_capability[1]})",
+            )
     except Exception as exc:  # driver present but broken: report, do not crash
         return False, f"no usable CUDA device ({type(exc).__name__}: {exc})"
     return False, "no CUDA device (numba.cuda.is_available() is False)"

@@ -1,9 +1,10 @@
 """The analytic traversal as a CUDA kernel (numba-cuda): one thread per ray, final ray states.
 
-Shared steps, not a forked traversal. numba-cuda compiles a CPU ``@njit`` dispatcher that a CUDA kernel calls
-as a CUDA device function from the same Python source (numba.cuda.target.CUDATypingContext.resolve_value_type
-wraps its ``py_func`` in a CUDADispatcher with ``device=True``; numba-cuda's own tests call ``@njit`` functions
-from kernels). So this kernel calls the CPU traversal's named steps themselves: the curve interface
+Shared steps, not a forked traversal. numba-cuda compiles a CPU-jitted (nopython) dispatcher that a CUDA
+kernel calls as a CUDA device function from the same Python source
+(numba.cuda.target.CUDATypingContext.resolve_value_type wraps its ``py_func`` in a CUDADispatcher with
+``device=True``; numba-cuda's own tests call such functions from kernels).
+So this kernel calls the CPU traversal's named steps themselves: the curve interface
 (kernels/curves.py: setup, find_exit, time_at, param_at_time, evaluate, interior_step, slowness, and through
 them parabolic.py, circular.py, nlinear.py, roots.py), the cell model and robustness steps of
 kernels/traverse.py (_media_at, _chord_middle, _tangent_face, _walk, _nudge, _onto_face) and the wind

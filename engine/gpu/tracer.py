@@ -9,11 +9,12 @@ from __future__ import annotations
 
 import time
 from typing import Any
+
 import numpy as np
 from numba import cuda
 
-from bentray.engine.gpu.device import simulator_enabled
 from bentray.engine.constants import COUNT_SIZE, CURVE_CODES, STATE_SIZE
+from bentray.engine.gpu.device import simulator_enabled
 from bentray.engine.gpu.kernel import THREADS_PER_BLOCK, trace_rays_cuda
 from bentray.engine.kernels.traverse import PAR_OUT_SIZE, RayParams, Rays
 from bentray.engine.mesh.cells import CellMesh
@@ -28,7 +29,7 @@ _SIM = simulator_enabled()
 
 def _dev(a: np.ndarray) -> Any:
     """A device copy of ``a``. Under the simulator: a plain numpy copy (the simulator does not unwrap its fake
-    device arrays inside the kernel's NamedTuple arguments, and the shared @njit steps need real arrays)."""
+    device arrays inside the kernel's NamedTuple arguments, and the shared CPU-jitted steps need real arrays)."""
     a = np.ascontiguousarray(a)
     return a.copy() if _SIM else cuda.to_device(a)
 
@@ -39,6 +40,7 @@ def _empty(shape: tuple[int, ...], dtype: Any) -> Any:
 
 def _host(a: Any) -> np.ndarray:
     return np.array(a) if _SIM else a.copy_to_host()
+
 
 # the last job's mesh on the device: (host mesh, device mesh). One job traces its batches over one mesh, so a
 # job copies it once; a Dask worker keeps the mesh of the plan it was sent for as long as batches of that plan come.

@@ -21,7 +21,7 @@ from bentray.engine import stages
 from bentray.engine.constants import STATUS_EXITED, STATUS_LOST, STATUS_REFLECTION_LIMIT, STATUS_STEP_LIMIT
 from bentray.engine.errors import JobInputError
 from bentray.engine.render.camera import pixel_directions
-from bentray.engine.render.shade import LOST_RGB, shade_sky, shade_surface, surface_normals
+from bentray.engine.render.shade import LOST_RGB, shade_sky, shade_surface, surface_materials, surface_normals
 from bentray.scenes.scene_models import check_points_above_ground, resolve_source_heights
 from bentray.scenes.schema import Job
 
@@ -50,15 +50,14 @@ class RenderOutcome:
 
 def _trace_camera(
     job: Job, media: Any, c_ref: float, wind: Any, origins: np.ndarray, dirs: np.ndarray, cell: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-    """Final position, direction, status and first-reflection material of every camera ray, in batches."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+    """Final position, direction and status of every camera ray, traced in batches of RENDER_BATCH_RAYS."""
     from bentray.engine.gpu.dispatch import trace_final_states
 
     n = len(dirs)
     pos = np.empty((n, 3))
     direction = np.empty((n, 3))
     status = np.empty(n, np.int8)
-    material = np.zeros(n, np.int64)
     info: dict[str, Any] = {}
     for a in range(0, n, RENDER_BATCH_RAYS):
         b = min(a + RENDER_BATCH_RAYS, n)
@@ -77,9 +76,7 @@ def _trace_camera(
             n_job_rays=n,
         )
         pos[a:b], direction[a:b], status[a:b] = res.position, res.direction, res.status
-        if res.reflection_material is not None:
-            material[a:b] = res.reflection_material[:, 0]
-    return pos, direction, status, material, info
+    return pos, direction, status, info
 
 
 def render_job(job: Job, base_dir: Path | None = None) -> RenderOutcome:
@@ -122,7 +119,7 @@ def render_job(job: Job, base_dir: Path | None = None) -> RenderOutcome:
     dirs = pixel_directions(camera)
     origins = np.broadcast_to(position, dirs.shape)
     t1 = time.perf_counter()
-    pos, d, status, material, info = _trace_camera(job, media, float(profile.c_ref), wind, origins, dirs, cell)
+    pos, d, status, info = _trace_camera(job, media, float(profile.c_ref), wind, origins, dirs, cell)
     t2 = time.perf_counter()
     hit = (status == STATUS_REFLECTION_LIMIT) & (pos[:, 2] < hi[2] - _TOP_TOL_M)
     lost = (status == STATUS_LOST) | (status == STATUS_STEP_LIMIT)
@@ -132,7 +129,8 @@ def render_job(job: Job, base_dir: Path | None = None) -> RenderOutcome:
         hp = pos[hit]
         ground = _ground_z(surfaces, lo, hi, hp)
         normals = surface_normals(hp, surfaces, lo, hi, ground)
-        rgb[hit] = shade_surface(hp, normals, material[hit], sun, (float(lo[2]), float(lo[2] + 0.25 * (hi[2] - lo[2]))))
+        material = surface_materials(hp, surfaces, ground)
+        rgb[hit] = shade_surface(hp, normals, material, sun, (float(lo[2]), float(lo[2] + 0.25 * (hi[2] - lo[2]))))
     rgb[lost] = LOST_RGB
     h, w = camera.height, camera.width
     stats = {

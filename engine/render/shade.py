@@ -7,7 +7,7 @@ import numpy as np
 
 from bentray.engine.surfaces import SceneSurfaces
 
-__all__ = ["LOST_RGB", "shade_sky", "shade_surface", "surface_normals"]
+__all__ = ["LOST_RGB", "shade_sky", "shade_surface", "surface_materials", "surface_normals"]
 
 LOST_RGB = np.array([1.0, 0.0, 1.0])  # rays that were lost or ran out of steps: magenta, counted in the stats
 _HORIZON = np.array([0.86, 0.90, 0.96])
@@ -59,6 +59,30 @@ def surface_normals(
         idx = np.nonzero(above)[0]
         n[idx] = _building_normals(points[idx], surfaces, ground_z[idx])
     return n
+
+
+def surface_materials(points: np.ndarray, surfaces: SceneSurfaces | None, ground_z: np.ndarray) -> np.ndarray:
+    """(n,) material index at hit points (n, 3): the terrain's (a height grid's square, else its default), or
+    the nearest building's for points more than 5 cm above the ground; 0 over flat ground. (The kernels stop a
+    camera ray at its first reflecting face before recording that face, so the material is found here.)"""
+    out = np.zeros(len(points), np.int64)
+    if surfaces is None:
+        return out
+    terrain = surfaces.terrain
+    if terrain is not None:
+        out[:] = terrain.default_material
+        grid_material = getattr(terrain, "material", None)
+        if grid_material is not None and hasattr(terrain, "x") and grid_material.ndim == 2:
+            j = np.clip(np.searchsorted(terrain.x, points[:, 0]) - 1, 0, grid_material.shape[1] - 1)
+            i = np.clip(np.searchsorted(terrain.y, points[:, 1]) - 1, 0, grid_material.shape[0] - 1)
+            out[:] = grid_material[i, j]
+    above = points[:, 2] > ground_z + 0.05
+    if surfaces.footprints and np.any(above):
+        mats = np.array([fp.material for fp in surfaces.footprints])
+        centres = np.array([np.mean(np.asarray(fp.polygon, float), axis=0) for fp in surfaces.footprints])
+        k = np.argmin(np.linalg.norm(points[above, None, :2] - centres[None], axis=2), axis=1)
+        out[above] = mats[k]
+    return out
 
 
 def _building_normals(points: np.ndarray, surfaces: SceneSurfaces, ground_z: np.ndarray) -> np.ndarray:

@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import pytest
 
 from bentray.engine.render.camera import pixel_directions
 from bentray.engine.render.image import render_job
