@@ -65,6 +65,7 @@ from bentray.engine.wind import WIND_NONE, effective_quantity
 
 __all__ = ["THREADS_PER_BLOCK", "trace_rays_cuda"]
 
+_CS_SIZE = curves.CS_SIZE  # a module constant: cuda.local.array needs a compile-time literal size
 THREADS_PER_BLOCK = 128  # rays per block: the loop is register-heavy, small blocks keep occupancy up
 
 
@@ -117,8 +118,8 @@ def trace_rays_cuda(mesh, prm, rays):  # noqa: C901 (trace_one's loop, kept as o
     wind_on = ray_wind != WIND_NONE
     xn = cuda.local.array(3, nb.float64)
     dn = cuda.local.array(3, nb.float64)
-    cs = cuda.local.array(curves.CS_SIZE, nb.float64)
-    for i in range(curves.CS_SIZE):
+    cs = cuda.local.array(_CS_SIZE, nb.float64)
+    for i in range(_CS_SIZE):
         cs[i] = 0.0
     g_slide = cuda.local.array(3, nb.float64)
     g = cuda.local.array(3, nb.float64)
