@@ -52,19 +52,18 @@ class Camera(BaseModel):
     @model_validator(mode="after")
     def _check_camera(self) -> Camera:
         if self.width * self.height > MAX_PIXELS:
+            n = self.width * self.height
             raise PydanticCustomError(
-                "value_error",
-                "width x height = {n:,} pixels is over the limit of {cap:,} (one ray per pixel)",
-                {"n": self.width * self.height, "cap": MAX_PIXELS},
+                "value_error", f"width x height = {n:,} pixels is over the limit of {MAX_PIXELS:,} (one ray per pixel)"
             )
         view = [b - a for a, b in zip(self.position, self.look_at, strict=True)]
         vn = math.sqrt(sum(v * v for v in view))
         if not vn > 1e-9:
-            raise PydanticCustomError("value_error", "look_at must differ from position", {})
+            raise PydanticCustomError("value_error", "look_at must differ from position")
         un = math.sqrt(sum(u * u for u in self.up))
         if not un > 0.0:
-            raise PydanticCustomError("value_error", "up must not be the zero vector", {})
+            raise PydanticCustomError("value_error", "up must not be the zero vector")
         cos = abs(sum(v * u for v, u in zip(view, self.up, strict=True))) / (vn * un)
         if cos > 1.0 - 1e-9:
-            raise PydanticCustomError("value_error", "up must not be parallel to the view direction", {})
+            raise PydanticCustomError("value_error", "up must not be parallel to the view direction")
         return self

@@ -113,9 +113,14 @@ def render_job(job: Job, base_dir: Path | None = None) -> RenderOutcome:
         )
     elif not position[2] > lo[2]:
         raise JobInputError(f"camera.position: z={position[2]:g} m is not above the ground (z={lo[2]:g} m)")
+    if not (np.all(position > lo) and np.all(position < hi)):
+        raise JobInputError(
+            f"camera.position: {position.tolist()} is not strictly inside the domain "
+            f"[{', '.join(f'{v:g}' for v in lo)}] to [{', '.join(f'{v:g}' for v in hi)}]"
+        )
     cell = int(media.locate(position[None])[0])
     if cell < 0:
-        raise JobInputError(f"camera.position: {list(position)} is not inside the media mesh")
+        raise JobInputError(f"camera.position: {position.tolist()} is not inside the media mesh")
     dirs = pixel_directions(camera)
     origins = np.broadcast_to(position, dirs.shape)
     t1 = time.perf_counter()

@@ -139,5 +139,27 @@ def compare(name: str) -> dict:
     return {"case": name, "device": cuda_status()[1], "timings_s": timings, "rays": rays}
 
 
+def compare_render() -> dict:
+    """A 16 x 12 V-IM render (engine/render) with solver.device cpu and cuda: identical final states."""
+    from bentray.engine.render.image import render_job
+    from bentray.scenes.schema import Job
+
+    spec = json.loads((REPO / "scenes" / "examples" / "mirage-inferior.json").read_text())
+    spec["camera"].update({"width": 16, "height": 12, "look_at": [400, 0, -150]})
+    out = {}
+    for dev in ("cpu", "cuda"):
+        job = Job.model_validate({**spec, "solver": {"device": dev}})
+        out[dev] = render_job(job, REPO)
+    a, b = out["cpu"], out["cuda"]
+    return {
+        "case": "render",
+        "devices": [a.stats["device"], b.stats["device"]],
+        "identical": bool(np.array_equal(a.position, b.position) and np.array_equal(a.direction, b.direction)),
+        "hit_equal": bool(np.array_equal(a.hit, b.hit)),
+        "surface": a.stats["surface"],
+        "sky": a.stats["sky"],
+    }
+
+
 if __name__ == "__main__":
-    print(json.dumps(compare(sys.argv[1])))
+    print(json.dumps(compare_render() if sys.argv[1] == "render" else compare(sys.argv[1])))

@@ -49,3 +49,10 @@ def test_cuda_kernel_matches_the_cpu_kernels_bit_for_bit(case):
     # the cases exercise what they are meant to: crossings everywhere, reflections in every case
     assert all(r["counts_cpu"][2] > 0 for r in rays[:1])
     assert sum(r["counts_cpu"][1] for r in rays) > 0
+
+
+def test_render_on_the_cuda_path_matches_the_cpu_path():
+    out = _run("render")
+    assert out["devices"] == ["cpu", "cuda"]
+    assert out["identical"] and out["hit_equal"], out
+    assert out["surface"] > 0 and out["sky"] > 0  # the view holds both the ground and the mirage's sky
