@@ -28,9 +28,10 @@ traversal's own tolerances) rather than bit for bit.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numba as nb
-from numba import cuda
+from numba import cuda as _cuda
 
 from bentray.engine.constants import (
     BOUNDARY_REFLECT,
@@ -64,6 +65,8 @@ from bentray.engine.kernels.traverse import _chord_middle, _media_at, _nudge, _o
 from bentray.engine.wind import WIND_NONE, effective_quantity
 
 __all__ = ["THREADS_PER_BLOCK", "trace_rays_cuda"]
+
+cuda: Any = _cuda  # numba.cuda's grid / local are injected at run time (no type information)
 
 _CS_SIZE = curves.CS_SIZE  # a module constant: cuda.local.array needs a compile-time literal size
 THREADS_PER_BLOCK = 128  # rays per block: the loop is register-heavy, small blocks keep occupancy up

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bentray.engine.surfaces import SceneSurfaces
+from bentray.engine.surfaces import HeightGrid, SceneSurfaces
 
 __all__ = ["LOST_RGB", "shade_sky", "shade_surface", "surface_materials", "surface_normals"]
 
@@ -71,8 +71,8 @@ def surface_materials(points: np.ndarray, surfaces: SceneSurfaces | None, ground
     terrain = surfaces.terrain
     if terrain is not None:
         out[:] = terrain.default_material
-        grid_material = getattr(terrain, "material", None)
-        if grid_material is not None and hasattr(terrain, "x") and grid_material.ndim == 2:
+        grid_material = terrain.material if isinstance(terrain, HeightGrid) else None
+        if isinstance(terrain, HeightGrid) and grid_material is not None and grid_material.ndim == 2:
             j = np.clip(np.searchsorted(terrain.x, points[:, 0]) - 1, 0, grid_material.shape[1] - 1)
             i = np.clip(np.searchsorted(terrain.y, points[:, 1]) - 1, 0, grid_material.shape[0] - 1)
             out[:] = grid_material[i, j]
