@@ -161,5 +161,27 @@ def compare_render() -> dict:
     }
 
 
+def compare_run() -> dict:
+    """``run_job`` of the A-LD fan example (5 rays, 5 reflections, outputs report) with solver.device cpu and
+    cuda (engine/batches.py sends the batches to the CUDA kernel): identical final states."""
+    from bentray.engine.run import run_job
+    from bentray.scenes.schema import Job
+
+    spec = json.loads((REPO / "scenes" / "examples" / "a-ld-fan.json").read_text())
+    spec["rays"].update({"elevation_deg": {"min": -20, "max": 20, "count": 5}, "max_reflections": 5})
+    spec["outputs"] = ["report"]
+    res = {}
+    for dev in ("cpu", "cuda"):
+        job = Job.model_validate({**spec, "solver": {**spec["solver"], "device": dev}})
+        res[dev] = run_job(job, REPO).trace
+    a, b = res["cpu"], res["cuda"]
+    same = all(
+        np.array_equal(getattr(a, k), getattr(b, k))
+        for k in ("position", "direction", "time_s", "length_m", "status", "reflections", "crossings", "nudges")
+    )
+    return {"case": "run", "identical": bool(same), "reflections": int(a.reflections.sum()), "rays": a.n_rays}
+
+
 if __name__ == "__main__":
-    print(json.dumps(compare_render() if sys.argv[1] == "render" else compare(sys.argv[1])))
+    special = {"render": compare_render, "run": compare_run}
+    print(json.dumps(special[sys.argv[1]]() if sys.argv[1] in special else compare(sys.argv[1])))

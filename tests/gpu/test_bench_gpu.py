@@ -46,3 +46,20 @@ def test_auto_picks_cuda_only_on_a_device_and_a_large_job(monkeypatch):
     monkeypatch.delenv("NUMBA_ENABLE_CUDASIM", raising=False)
     assert device.resolve_device("auto", device.AUTO_MIN_RAYS - 1)[0] == "cpu"
     assert device.resolve_device("auto", device.AUTO_MIN_RAYS)[0] == "cuda"
+
+
+def test_cuda_for_a_job_with_a_field_or_paths_is_an_error_naming_solver_device():
+    from types import SimpleNamespace
+
+    from bentray.engine.batches import _on_cuda
+    from bentray.engine.errors import JobInputError
+
+    assert not _on_cuda(SimpleNamespace(device="cpu", field=object(), path_samples=0, n_rays=10))
+    for plan in (
+        SimpleNamespace(device="cuda", field=object(), path_samples=0, n_rays=10),
+        SimpleNamespace(device="cuda", field=None, path_samples=400, n_rays=10),
+    ):
+        with pytest.raises(JobInputError, match=r"^solver\.device: 'cuda' traces final ray states only"):
+            _on_cuda(plan)  # type: ignore[arg-type]
+    # auto keeps such a job on the CPU without asking for a device
+    assert not _on_cuda(SimpleNamespace(device="auto", field=object(), path_samples=0, n_rays=10**7))

@@ -56,3 +56,9 @@ def test_render_on_the_cuda_path_matches_the_cpu_path():
     assert out["devices"] == ["cpu", "cuda"]
     assert out["identical"] and out["hit_equal"], out
     assert out["surface"] > 0 and out["sky"] > 0  # the view holds both the ground and the mirage's sky
+
+
+def test_bentray_run_with_solver_device_cuda_matches_cpu():
+    out = _run("run")
+    assert out["identical"], out
+    assert out["rays"] == 5 and out["reflections"] > 0
