@@ -70,9 +70,18 @@ def trace_batch(plan: TracePlan, start: int, stop: int) -> BatchResult:
     elif _on_cuda(plan):
         from bentray.engine.gpu.tracer import trace_cuda  # numba-cuda: final ray states only
 
-        sl_args = (plan.origins[sl], plan.directions[sl], plan.start_cells[sl])
-        kw = {"max_time_s": plan.max_time_s, "max_reflections": plan.max_reflections, "max_steps": plan.max_steps}
-        result, _ = trace_cuda(plan.mesh, plan.curve, plan.c_ref, *sl_args, wind=plan.wind, **kw)
+        result, _ = trace_cuda(
+            plan.mesh,
+            plan.curve,
+            plan.c_ref,
+            plan.origins[sl],
+            plan.directions[sl],
+            plan.start_cells[sl],
+            max_time_s=plan.max_time_s,
+            max_reflections=plan.max_reflections,
+            max_steps=plan.max_steps,
+            wind=plan.wind,
+        )
         result.reflection_cos = result.reflection_material = None  # as the CPU path without a field
     else:
         if plan.field is not None:
