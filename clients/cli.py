@@ -350,6 +350,15 @@ def _add_warmup(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
 COMMANDS.append(_add_warmup)
 
 
+def _add_render(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+    from bentray.clients.render_cli import add_render  # bentray render (a camera through the media mesh)
+
+    add_render(sub)
+
+
+COMMANDS.append(_add_render)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="bentray", description="Outdoor-acoustics curved-ray engine.")
     parser.add_argument("--version", action="version", version=f"bentray {bentray.__version__}")

@@ -67,6 +67,22 @@ def trace_batch(plan: TracePlan, start: int, stop: int) -> BatchResult:
             ground_z=spec.ground_z,
             top=spec.top,
         )
+    elif _on_cuda(plan):
+        from bentray.engine.gpu.tracer import trace_cuda  # numba-cuda: final ray states only
+
+        result, _ = trace_cuda(
+            plan.mesh,
+            plan.curve,
+            plan.c_ref,
+            plan.origins[sl],
+            plan.directions[sl],
+            plan.start_cells[sl],
+            max_time_s=plan.max_time_s,
+            max_reflections=plan.max_reflections,
+            max_steps=plan.max_steps,
+            wind=plan.wind,
+        )
+        result.reflection_cos = result.reflection_material = None  # as the CPU path without a field
     else:
         if plan.field is not None:
             assert plan.field_weights is not None
@@ -88,6 +104,24 @@ def trace_batch(plan: TracePlan, start: int, stop: int) -> BatchResult:
         if buffers is not None:
             buffers.collapse(ray_offset=start)
     return BatchResult(start, stop, result, buffers, restarts, time.perf_counter() - t0)
+
+
+def _on_cuda(plan: TracePlan) -> bool:
+    """True when the plan's analytic rays go to the CUDA kernel (solver.device cuda, or auto on a device for a
+    large job). The device computes final ray states only: a job with a field, receivers or recorded paths
+    stays on the CPU under auto and is an error naming solver.device under cuda."""
+    if plan.device == "cpu":
+        return False
+    from bentray.engine.errors import JobInputError
+    from bentray.engine.gpu.device import resolve_device
+
+    needs_cpu = plan.field is not None or plan.path_samples > 0
+    if needs_cpu and plan.device == "cuda":
+        raise JobInputError(
+            "solver.device: 'cuda' traces final ray states only; this job accumulates a field or receivers or "
+            "records ray paths (use 'cpu' or 'auto', or drop the 'field' / 'paths' outputs)"
+        )
+    return not needs_cpu and resolve_device(plan.device, plan.n_rays)[0] == "cuda"
 
 
 def combine_batches(

@@ -442,6 +442,7 @@ def build_plan(
         field_weights=setup.template.weights if setup.template is not None else None,
         baseline=baseline_spec(job, profile) if solver.is_baseline else None,
         source=fan.source,
+        device=solver.device,
     )
 
 

@@ -65,6 +65,7 @@ class TracePlan:
     field_weights: np.ndarray | None = None
     baseline: BaselineSpec | None = None
     source: np.ndarray | None = None
+    device: str = "cpu"  # solver.device: "cpu" | "cuda" | "auto" (engine/gpu/device.py; final ray states only)
 
     @property
     def n_rays(self) -> int:

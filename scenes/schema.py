@@ -30,6 +30,7 @@ from pydantic_core import PydanticCustomError
 
 from bentray.engine.errors import BentrayError
 from bentray.scenes.bounds import MAX_LENGTH_M, MIN_LENGTH_M, Coord, Vec3
+from bentray.scenes.camera_models import Camera
 from bentray.scenes.condition_models import (
     MAX_CONDITIONS,
     MAX_EMISSION_GROUPS,
@@ -402,6 +403,9 @@ class Solver(_Model):
     tolerance: float | None = Field(default=None, ge=1e-14, lt=1)
     media: Literal["mesh", "exact"] | None = None
     batch_rays: int = Field(default=DEFAULT_BATCH_RAYS, ge=1, le=MAX_TOTAL_RAYS)
+    # where the analytic traversal runs: "cuda" needs numba-cuda and a device (the gpu extra), "auto" picks
+    # cuda when a device is present and the job is large enough (engine/gpu/device.py, AUTO_MIN_RAYS)
+    device: Literal["cpu", "cuda", "auto"] = "cpu"
 
     @property
     def is_baseline(self) -> bool:
@@ -498,6 +502,7 @@ class Job(_Model):
     eigenrays: EigenraySpec = Field(default_factory=EigenraySpec)
     conditions: list[Condition] = Field(default_factory=list, max_length=MAX_CONDITIONS)
     periods: Periods = Field(default_factory=Periods)
+    camera: Camera | None = None  # bentray render: a pinhole camera through the media mesh (camera_models.py)
 
     @field_validator("name")
     @classmethod

@@ -82,6 +82,12 @@ def _linked_surfaces(quick: bool, cache: dict[str, Any]) -> Section:
     return linked_surfaces.run(quick)
 
 
+def _gpu(quick: bool, cache: dict[str, Any]) -> Section:
+    from bentray.engine.bench import gpu  # skipped (status 0) without a CUDA device
+
+    return gpu.run(quick, scene_cache=cache)
+
+
 # name -> (title, runner(quick, shared scene-mesh cache) -> Section)
 SECTIONS: dict[str, tuple[str, Callable[[bool, dict[str, Any]], Section]]] = {
     "convergence": ("Convergence of the three curves (Fig. 3)", _convergence),
@@ -94,6 +100,7 @@ SECTIONS: dict[str, tuple[str, Callable[[bool, dict[str, Any]], Section]]] = {
     "table1": ("Built-in scenes end to end (Table 1)", _table1),
     "field_error": ("Field error against run time", _field_error),
     "linked_surfaces": ("Appendix C: embedded vs linked surfaces", _linked_surfaces),
+    "gpu": ("CUDA traversal against the CPU kernels", _gpu),
 }
 
 

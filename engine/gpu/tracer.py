@@ -1,0 +1,136 @@
+"""Host side of the CUDA traversal: the mesh copied to the device once per job, rays in, final states out.
+
+Timings are kept apart (seconds): ``mesh_transfer`` (0 when the job's mesh is already on the device),
+``rays_transfer`` (inputs to the device), ``compile`` (the kernel's first launch in this process for these
+argument types: numba-cuda compiles on first use), ``kernel`` (the launch, synchronised) and ``copy_back``.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import numpy as np
+from numba import cuda
+
+from bentray.engine.constants import COUNT_SIZE, CURVE_CODES, STATE_SIZE
+from bentray.engine.gpu.device import simulator_enabled
+from bentray.engine.gpu.kernel import THREADS_PER_BLOCK, trace_rays_cuda
+from bentray.engine.kernels.traverse import PAR_OUT_SIZE, RayParams, Rays
+from bentray.engine.mesh.cells import CellMesh
+from bentray.engine.result import TraceResult
+from bentray.engine.tracer import _trace_result, ray_inputs
+from bentray.engine.wind import check_wind
+
+__all__ = ["device_mesh", "trace_cuda"]
+
+_SIM = simulator_enabled()
+
+
+def _dev(a: np.ndarray) -> Any:
+    """A device copy of ``a``. Under the simulator: a plain numpy copy (the simulator does not unwrap its fake
+    device arrays inside the kernel's NamedTuple arguments, and the shared CPU-jitted steps need real arrays)."""
+    a = np.ascontiguousarray(a)
+    return a.copy() if _SIM else cuda.to_device(a)
+
+
+def _empty(shape: tuple[int, ...], dtype: Any) -> Any:
+    return np.empty(shape, dtype=dtype) if _SIM else cuda.device_array(shape, dtype=dtype)
+
+
+def _host(a: Any) -> np.ndarray:
+    return np.array(a) if _SIM else a.copy_to_host()
+
+
+# the last job's mesh on the device: (host mesh, device mesh). One job traces its batches over one mesh, so a
+# job copies it once; a Dask worker keeps the mesh of the plan it was sent for as long as batches of that plan come.
+_MESH_CACHE: list[tuple[CellMesh, CellMesh]] = []
+
+
+def device_mesh(mesh: CellMesh) -> tuple[CellMesh, float]:
+    """(the CellMesh with every array on the device, seconds spent copying: 0 when it was there already)."""
+    if _MESH_CACHE and _MESH_CACHE[0][0] is mesh:
+        return _MESH_CACHE[0][1], 0.0
+    t0 = time.perf_counter()
+    dev = CellMesh(*(_dev(a) for a in mesh))
+    cuda.synchronize()
+    _MESH_CACHE[:] = [(mesh, dev)]
+    return dev, time.perf_counter() - t0
+
+
+def trace_cuda(
+    mesh: CellMesh,
+    curve: str,
+    c_ref: float,
+    origins: np.ndarray,
+    directions: np.ndarray,
+    start_cells: np.ndarray,
+    *,
+    max_time_s: float,
+    max_reflections: int,
+    max_steps: int = 10_000_000,
+    wind: tuple[int, np.ndarray] | None = None,
+    refl_cap: int = 1,
+) -> tuple[TraceResult, dict[str, float]]:
+    """Final ray states of tracer.trace (no field, paths or paraxial state) computed by the CUDA kernel.
+
+    Same inputs and frames as :func:`bentray.engine.tracer.trace`; refl_cap : first reflections recorded per
+    ray (incidence cosine, face material). Returns (TraceResult with launch angles NaN, timings in seconds).
+    """
+    origins, directions, start_cells = ray_inputs(curve, origins, directions, start_cells, max_time_s)
+    wind_code, wind_params = check_wind(wind)
+    n = origins.shape[0]
+    timings: dict[str, float] = {}
+    dmesh, timings["mesh_transfer"] = device_mesh(mesh)
+    t0 = time.perf_counter()
+    prm = RayParams(
+        CURVE_CODES[curve],
+        float(c_ref),
+        wind_code,
+        _dev(np.asarray(wind_params, dtype=np.float64)),
+        float(max_time_s),
+        int(max_reflections),
+        int(max_steps),
+        False,
+        1.0,
+    )
+    rays = Rays(
+        _dev(origins),
+        _dev(directions),
+        _dev(start_cells),
+        _dev(np.zeros((n, 0))),
+        _dev(np.zeros((n, refl_cap))),
+        _dev(np.zeros((n, refl_cap), dtype=np.int64)),
+        _empty((n, STATE_SIZE), np.float64),
+        _empty((n, COUNT_SIZE), np.int64),
+        _dev(np.zeros((0, PAR_OUT_SIZE))),
+    )
+    cuda.synchronize()
+    timings["rays_transfer"] = time.perf_counter() - t0
+    blocks = max((n + THREADS_PER_BLOCK - 1) // THREADS_PER_BLOCK, 1)
+    t0 = time.perf_counter()
+    compile_fn = getattr(trace_rays_cuda, "compile", None)  # the simulator has none (nothing to compile)
+    typeof_fn = getattr(trace_rays_cuda, "typeof_pyval", None)
+    if compile_fn is not None and typeof_fn is not None:
+        # numba-cuda compiles for these argument types without launching; a no-op once compiled
+        compile_fn(tuple(typeof_fn(a) for a in (dmesh, prm, rays)))
+    timings["compile"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    if n > 0:
+        trace_rays_cuda[blocks, THREADS_PER_BLOCK](dmesh, prm, rays)
+    cuda.synchronize()
+    timings["kernel"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    host = Rays(
+        origins,
+        directions,
+        start_cells,
+        np.zeros((n, 0)),
+        _host(rays.refl_cos),
+        _host(rays.refl_mat),
+        _host(rays.out_state),
+        _host(rays.out_counts),
+        np.zeros((0, PAR_OUT_SIZE)),
+    )
+    timings["copy_back"] = time.perf_counter() - t0
+    return _trace_result(host, None, True, False), timings

@@ -1,0 +1,1 @@
+"""Light through the media mesh: pinhole-camera rays, shading, images (``bentray render``)."""
