@@ -87,6 +87,8 @@ def trace_batch(plan: TracePlan, start: int, stop: int) -> BatchResult:
         if plan.field is not None:
             assert plan.field_weights is not None
             buffers = plan.field.like(plan.field_weights[sl])
+            if plan.ray_amplitudes is not None and isinstance(buffers, BeamBuffers):
+                buffers.ray_amp = plan.ray_amplitudes[sl]
         result = trace(
             plan.mesh,
             plan.curve,

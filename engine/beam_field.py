@@ -149,6 +149,8 @@ class BeamBuffers:
         self.pgrid = pgrid if pgrid is not None else bgrid._replace(mode=BEAM_SEMICOHERENT)
         self.points = points if points is not None else bin_points(np.zeros((0, 3)))
         self.weights = np.ascontiguousarray(weights, dtype=np.float64)
+        # (n_rays, F) per-ray amplitude factors of the sources' directivity for this batch (None: omni)
+        self.ray_amp: np.ndarray | None = None
         self.n_slots = int(n_slots)
         self.collapsed: BeamCollapsed | None = None
         self.receivers: ReceiverLevels | None = None

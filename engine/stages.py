@@ -32,6 +32,7 @@ from bentray.engine.result import MeshGeometry, TraceResult
 from bentray.engine.surfaces import SceneSurfaces
 from bentray.engine.trace_plan import BaselineSpec, TracePlan
 from bentray.engine.wind import sizing_quantity
+from bentray.scenes.directivity_models import ray_amplitudes
 from bentray.scenes.profile_models import profile_from_spec
 from bentray.scenes.scene_models import check_points_above_ground, scene_surfaces
 from bentray.scenes.schema import Job
@@ -442,8 +443,24 @@ def build_plan(
         field_weights=setup.template.weights if setup.template is not None else None,
         baseline=baseline_spec(job, profile) if solver.is_baseline else None,
         source=fan.source,
+        ray_amplitudes=_ray_amplitudes(job, fan, setup),
         device=solver.device,
     )
+
+
+def _ray_amplitudes(job: Job, fan: LaunchFan, setup: FieldSetup) -> np.ndarray | None:
+    """(n, F) pressure-amplitude factors of the sources' directivity toward each ray's launch direction
+    (scenes/directivity_models.py), for beam fields; None when every source is omnidirectional."""
+    template = setup.template
+    if not isinstance(template, beam_field.BeamBuffers) or all(s.directivity is None for s in job.sources):
+        return None
+    settings = template.settings or job.field
+    labels = list(settings.labels) if settings is not None else []
+    out = np.ones((fan.directions.shape[0], len(labels)))
+    for s, src in enumerate(job.sources):
+        rows = fan.source == s
+        out[rows] = ray_amplitudes(src.directivity, labels, fan.directions[rows])
+    return out
 
 
 def stage_trace(

@@ -65,6 +65,7 @@ class TracePlan:
     field_weights: np.ndarray | None = None
     baseline: BaselineSpec | None = None
     source: np.ndarray | None = None
+    ray_amplitudes: np.ndarray | None = None  # (n, F) source directivity per ray (beams; None: omni)
     device: str = "cpu"  # solver.device: "cpu" | "cuda" | "auto" (engine/gpu/device.py; final ray states only)
 
     @property

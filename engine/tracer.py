@@ -114,6 +114,10 @@ def _field_args(
         raise ValueError("field weights must have one row per ray")
     if isinstance(field, BeamBuffers):
         fld, f_weights = no_field_tuple(n)
+        if field.ray_amp is not None:  # directivity: per-ray amplitude factors travel as the beams' f_weights
+            if field.ray_amp.shape != (n, field.bgrid.omega.shape[0]):
+                raise ValueError("directivity factors must have one row per ray and one column per band")
+            f_weights = np.ascontiguousarray(field.ray_amp, dtype=np.float64)
         return _FieldArgs(fld, f_weights, field.n_slots, field.kernel_args(), REFLECTION_RECORD_CAP)
     if field is not None:
         return _FieldArgs(field.kernel_tuple(), field.weights, field.n_slots, no_beam_args(), REFLECTION_RECORD_CAP)

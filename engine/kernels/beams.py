@@ -428,7 +428,8 @@ class BeamTables(NamedTuple):
 class BeamRay(NamedTuple):
     """Per-ray scratch of the beam field: the last sample and the one being built, with amplitudes.
 
-    last, cur : (SAMPLE_SIZE,); amp_last, amp_cur : (2, F); ist : (3,) int64 =
+    last, cur : (SAMPLE_SIZE,); amp_last, amp_cur : (2, F); amp0 : (F,) the ray's own amplitude factor
+    (the source's directivity toward its launch direction; ones for an omnidirectional source); ist : (3,) int64 =
     [has a last sample, caustics passed (kmah), sign of the last non-zero det[X1, X2, T] (+1/-1/0)].
     """
 
@@ -437,12 +438,18 @@ class BeamRay(NamedTuple):
     amp_last: np.ndarray
     amp_cur: np.ndarray
     ist: np.ndarray
+    amp0: np.ndarray
 
 
 @nb.njit(**NJIT_FLAGS)
 def new_ray(n_f):
     return BeamRay(
-        np.zeros(SAMPLE_SIZE), np.zeros(SAMPLE_SIZE), np.zeros((2, n_f)), np.zeros((2, n_f)), np.zeros(3, np.int64)
+        np.zeros(SAMPLE_SIZE),
+        np.zeros(SAMPLE_SIZE),
+        np.zeros((2, n_f)),
+        np.zeros((2, n_f)),
+        np.zeros(3, np.int64),
+        np.ones(n_f),
     )
 
 
@@ -509,6 +516,9 @@ def ray_sample(beam, slot, ray, x, tangent, time, arc, slow, par, refl, start_ne
         ray.ist[2] = sign
     cur[S_JSIGN] = sign
     _amplitude(beam.tabs, arc, n_refl, refl_cos, refl_mat, ray.amp_cur)
+    for f in range(ray.amp0.shape[0]):  # source directivity (x 1.0 exactly when omnidirectional)
+        ray.amp_cur[0, f] *= ray.amp0[f]
+        ray.amp_cur[1, f] *= ray.amp0[f]
     reached = 0
     if ray.ist[0] != 0 and not start_new:
         kmah = ray.ist[1]

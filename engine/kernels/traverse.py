@@ -115,9 +115,10 @@ class Rays(NamedTuple):
     """Per-ray inputs and outputs, row i for ray i.
 
     origins, directions : (n, 3) m / any length; start_cells : (n,) int64 (-1: not in the mesh -> lost);
-    f_weights : (n, n_f) band powers (n_f may be 0 without field); refl_cos, refl_mat : (n, R) first R
-    reflections' incidence cosine and face material (written); out_state : (n, STATE_SIZE) float64,
-    out_counts : (n, COUNT_SIZE) int64 (written; columns constants.STATE_* / COUNT_*);
+    f_weights : (n, n_f) band powers of a voxel field (n_f may be 0 without field), or with beams the
+        per-ray amplitude factors of the source's directivity (n, F; (n, 0) for omnidirectional sources);
+    refl_cos, refl_mat : (n, R) first R reflections' incidence cosine and face material (written);
+    out_state : (n, STATE_SIZE) float64, out_counts : (n, COUNT_SIZE) int64 (written; constants.STATE_*, COUNT_*);
     out_par : (n, PAR_OUT_SIZE) final paraxial state (written), or (0, PAR_OUT_SIZE): not asked for.
     """
 
@@ -401,6 +402,9 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
     par_tmp = np.zeros(paraxial.PAR_SIZE)
     p_end = np.zeros(3)
     bray = beams.new_ray(beam.grid.omega.shape[0])
+    if deposit_on and rays.f_weights.shape[1] == bray.amp0.shape[0]:  # beams: f_weights = directivity factors
+        for f in range(bray.amp0.shape[0]):
+            bray.amp0[f] = rays.f_weights[i_ray, f]
     launch_cos = math.sqrt(d[0] * d[0] + d[1] * d[1])
     p_norm = 1.0
     if par_on:
