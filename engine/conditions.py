@@ -102,7 +102,7 @@ def _combine_fields(job: Job, runs: list[ConditionRun], offsets: list[tuple[floa
     per_condition: list[list[np.ndarray]] = []
     for run in runs:
         name = run.condition.name
-        fields = [o.field for o in run.outcomes]
+        fields: list[Any] = [o.field for o in run.outcomes]
         for key in spl_names:
             arrays[f"{key}__{name}"] = _group_sum([f.arrays[key] for f in fields])
         per_condition.append([f.arrays["spl_a"] for f in fields])
@@ -121,7 +121,7 @@ def _combine_fields(job: Job, runs: list[ConditionRun], offsets: list[tuple[floa
         f"{list(job.periods.hours)} and penalties {list(job.periods.penalties_db)} dB"
     )
     field_data["condition_names"] = [run.condition.name for run in runs]
-    stats = {"per_condition": {run.condition.name: run.outcomes[0].field.stats for run in runs}}
+    stats = {"per_condition": {run.condition.name: getattr(run.outcomes[0].field, "stats", {}) for run in runs}}
     preview = dict(first.preview)
     preview["title"] = f"{job.name}: Lden over {len(runs)} conditions"
     from bentray.engine.field import FieldArrays
@@ -143,7 +143,7 @@ def _combine_receivers(job: Job, runs: list[ConditionRun], offsets: list[tuple[f
     spl_cols = [c for c in first.columns if c.startswith("spl_inc_") or c == "spl_a_inc"]
     for run in runs:
         name = run.condition.name
-        tables = [o.receivers for o in run.outcomes]
+        tables: list[Any] = [o.receivers for o in run.outcomes]
         for col in spl_cols:
             key = f"{col}__{name}"
             values[key] = _group_sum([np.array([row[col] for row in t.rows], float) for t in tables])

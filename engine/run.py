@@ -23,7 +23,8 @@ from bentray.engine.result import JobOutcome
 from bentray.engine.shadow_stage import stage_refractive_shadow
 from bentray.engine.stages import ProgressFn, StageLog
 from bentray.engine.surfaces import SceneSurfaces
-from bentray.scenes.gis_frame import LocalFrame, localise_job
+from bentray.scenes.crs import LocalFrame
+from bentray.scenes.gis_frame import localise_job
 from bentray.scenes.scene_models import resolve_source_heights
 from bentray.scenes.schema import Job
 

@@ -37,7 +37,7 @@ __all__ = ["stage_refractive_shadow"]
 _AZIMUTH_PROBES = 36  # directions tested for upward refraction when deciding whether the stage is needed
 
 
-def _ground(job: Any, surfaces: Any):  # type: ignore[no-untyped-def]
+def _ground(job: Any, surfaces: Any) -> Any:
     from bentray.engine.diffraction.stage import _ground as ground
 
     return ground(job, surfaces)

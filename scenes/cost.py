@@ -235,7 +235,7 @@ def estimate_mesh(job: Any, base_dir: str | Path | None = None) -> MeshEstimate:
         return _estimate_one_mesh(job, base_dir)
     from bentray.scenes.condition_models import condition_job, medium_key
 
-    media = {}
+    media: dict[str, Any] = {}
     for cond in conditions:
         cjob = condition_job(job, cond)
         media.setdefault(medium_key(cjob), cjob)

@@ -56,7 +56,7 @@ class DirectivitySpec(BaseModel):
             if self.reference is not None:
                 r = np.asarray(self.reference, float)
                 perp = r - a * (r @ a) / (a @ a)
-                if not np.linalg.norm(perp) > 1e-9 * max(np.linalg.norm(r), 1.0):
+                if not float(np.linalg.norm(perp)) > 1e-9 * max(float(np.linalg.norm(r)), 1.0):
                     raise ValueError("reference must not be parallel to the axis")
         for band, table in self.levels_db.items():
             arr = np.asarray(table, float)
@@ -91,7 +91,7 @@ class DirectivitySpec(BaseModel):
         table = np.asarray(self.levels_db[band], float)
         pol = np.asarray(self.polar_deg, float)
         if self.azimuth_deg is None:
-            return np.interp(polar, pol, table)
+            return np.asarray(np.interp(polar, pol, table), float)
         az = np.degrees(np.arctan2(d @ e2, d @ e1)) % 360.0
         azs = np.asarray(self.azimuth_deg, float)
         # periodic in azimuth: extend the table by the first azimuth + 360
@@ -104,7 +104,7 @@ class DirectivitySpec(BaseModel):
         u = np.clip((polar - pol[i]) / (pol[i + 1] - pol[i]), 0.0, 1.0)
         lo = (1.0 - u) * tab_ext[j, i] + u * tab_ext[j, i + 1]
         hi = (1.0 - u) * tab_ext[j + 1, i] + u * tab_ext[j + 1, i + 1]
-        return (1.0 - t) * lo + t * hi
+        return np.asarray((1.0 - t) * lo + t * hi, float)
 
     def power_change_db(self, band: str, n: int = 181) -> float:
         """10 lg of the mean of 10^(Delta L / 10) over the sphere (0: the table conserves power)."""
