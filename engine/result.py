@@ -70,13 +70,15 @@ class MeshGeometry:
     """Cell geometry for mesh.vtu: points and cells of one VTK cell type.
 
     points : (P, 3) metres; connectivity : (C, k) int64; cell_type : "tetra" (k=4) or "hexahedron"
-    (k=8, VTK ordering); cell_data : arrays of length C (e.g. the traced quantity and its gradient).
+    (k=8, VTK ordering); cell_data : arrays of length C (e.g. the traced quantity and its gradient);
+    field_data : text written beside them (legends, units), shown by ParaView's information panel.
     """
 
     points: np.ndarray
     connectivity: np.ndarray
     cell_type: str
     cell_data: dict[str, np.ndarray] = field(default_factory=dict)
+    field_data: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass

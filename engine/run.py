@@ -132,7 +132,7 @@ def run_prepared(prepared: Prepared, *, progress: ProgressFn, executor: Executor
     arrivals = stages.stage_eigenrays(job, profile, wind, setup, start_cells, fan, log)
     if receivers is not None and arrivals is not None:
         merge_into_receivers(receivers, arrivals, list(_band_labels(job, setup)))
-    geometry = stages.stage_mesh_output(job, media, log)
+    geometry = stages.stage_mesh_output(job, media, log, surfaces)
     report = build_report(
         job,
         profile_desc=profile.describe(),

@@ -18,7 +18,7 @@ import numpy as np
 from bentray.engine import beam_field
 from bentray.engine import field as field_stage
 from bentray.engine.compile_time import compile_timer
-from bentray.engine.constants import CURVE_QUANTITY
+from bentray.engine.constants import BOUNDARY_REFLECT, CURVE_QUANTITY
 from bentray.engine.eigenray_stage import ArrivalTable, eigenray_decision, run_eigenrays
 from bentray.engine.eigenrays import RayModel
 from bentray.engine.errors import JobInputError
@@ -620,12 +620,29 @@ def stage_eigenrays(
     return table
 
 
-def stage_mesh_output(job: Job, media: Media, log: StageLog) -> MeshGeometry | None:
+def stage_mesh_output(
+    job: Job, media: Media, log: StageLog, surfaces: SceneSurfaces | None = None
+) -> MeshGeometry | None:
     """The media mesh's geometry for ``mesh.vtu`` when 'mesh' is in the outputs."""
     if "mesh" not in job.outputs:
         log.stages["mesh_output"] = "skipped: 'mesh' not in outputs"
         return None
     with log.timed("mesh_geometry"):
         geometry = media.geometry()
+        _tag_reflecting_materials(geometry, media.mesh, job, surfaces)
     log.stages["mesh_output"] = "ran"
     return geometry
+
+
+def _tag_reflecting_materials(geometry: MeshGeometry, mesh: CellMesh, job: Job, surfaces: SceneSurfaces | None) -> None:
+    """Cell array ``reflecting_material``: the material index of the cell's reflecting (ground, wall, roof)
+    face, -1 for cells without one (the largest index where a cell has several), and its legend. Only
+    where mesh.vtu's cells are the media cells one to one."""
+    if geometry.connectivity.shape[0] != mesh.neighbours.shape[0]:
+        return
+    reflect = mesh.neighbours == BOUNDARY_REFLECT
+    geometry.cell_data["reflecting_material"] = np.where(reflect, mesh.face_material, -1).max(axis=1).astype(np.int32)
+    names = [m.name for m in surfaces.materials] if surfaces is not None else ["the flat ground (scene.ground)"]
+    geometry.field_data["reflecting_material_legend"] = "-1 no reflecting face, " + ", ".join(
+        f"{i} {name}" for i, name in enumerate(names)
+    )

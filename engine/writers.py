@@ -196,6 +196,7 @@ def write_rays_vtp(trace: TraceResult, path: str | Path) -> Path:
     poly.cell_data["ray"] = rays.astype(np.int64)
     poly.cell_data["source"] = np.asarray(trace.source, dtype=np.int64)[rays]
     poly.cell_data["status"] = np.asarray(trace.status, dtype=np.int32)[rays]
+    poly.field_data["status_legend"] = [", ".join(f"{code} {name}" for code, name in sorted(STATUS_NAMES.items()))]
     path = Path(path)
     with _staged_file(path) as tmp:
         poly.save(tmp, compression=VTP_COMPRESSION)
@@ -228,6 +229,8 @@ def write_mesh_vtu(geometry: MeshGeometry, path: str | Path) -> Path:
         if values.shape[0] != n_cells:
             raise ValueError(f"cell_data[{name!r}] has {values.shape[0]} rows for {n_cells} cells")
         grid.cell_data[name] = np.ascontiguousarray(values)
+    for name, text in geometry.field_data.items():
+        grid.field_data[name] = [str(text)]
     path = Path(path)
     with _staged_file(path) as tmp:
         grid.save(tmp, compression=VTU_COMPRESSION)
