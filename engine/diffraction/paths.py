@@ -50,6 +50,9 @@ class GroundSide:
     reflect: bool = True
 
 
+MIN_LEG_M = 1e-6  # shortest leg of a diffracted path (m); see double_edge_paths
+
+
 def _angle(edge: Edge, v: np.ndarray) -> np.ndarray:
     """Angle (rad, [0, 2 pi)) of directions v (N, 3) about the edge, from face 0."""
     e = np.asarray(edge.direction, float)
@@ -124,6 +127,8 @@ def edge_paths(
         e_pts = np.asarray(edge.point, float) + straight.y_e[:, None] * np.asarray(edge.direction, float)
         leg_a = leg_fn(s_pts, e_pts)
         leg_b = leg_fn(e_pts, r_pts)
+        leg_a = leg_a._replace(length=np.maximum(leg_a.length, MIN_LEG_M))  # a point on the edge: finite
+        leg_b = leg_b._replace(length=np.maximum(leg_b.length, MIN_LEG_M))
         e = np.asarray(edge.direction, float)
         sin_b0 = np.linalg.norm(np.cross(leg_a.t_end, e), axis=1)
         leg = DiffractedLeg(
@@ -329,8 +334,10 @@ def double_edge_paths(
             q2 = p1 + y2[:, None] * ea + ((p2 - p1) - y2_0 * ea)
             leg_a = leg_fn(s_pts, q1)
             leg_c = leg_fn(q2, r_pts)
-            s2 = np.linalg.norm(q2 - q1, axis=1)
-            s1, s3 = leg_a.length, leg_c.length
+            # legs shorter than MIN_LEG_M (a point on an edge, a zero-width roof) are clipped: UTD is not
+            # valid there anyway, and the level stays finite instead of dividing by zero
+            s2 = np.maximum(np.linalg.norm(q2 - q1, axis=1), MIN_LEG_M)
+            s1, s3 = np.maximum(leg_a.length, MIN_LEG_M), np.maximum(leg_c.length, MIN_LEG_M)
             sin_b = np.maximum(np.linalg.norm(np.cross(leg_a.t_end, ea), axis=1), 1e-12)
             mid = (q2 - q1) / np.maximum(s2, 1e-300)[:, None]
             phi1_in = _angle(e1, -leg_a.t_end)
