@@ -34,6 +34,8 @@ from bentray.engine.field_sources import counts as source_counts
 
 __all__ = ["stage_refractive_shadow"]
 
+SHADOW_AUTO_MAX_SOLVES = 16  # field.refractive_shadow "auto": at most this many mode solves (~0.3-10 s each)
+_AZIMUTH_BIN_DEG = 5.0  # refractive_shadow_energy's default azimuth bin with wind
 _AZIMUTH_PROBES = 36  # directions tested for upward refraction when deciding whether the stage is needed
 
 
@@ -53,6 +55,29 @@ def _needed(job: Any, profile: Any, wind: Any, ground_z: Any) -> bool:
         if np.any(upward_refracting(profile, s, g, az, wind)):
             return True
     return False
+
+
+def _mode_solves(job: Any, wind: Any, field_arrays: Any, setup: Any) -> int:
+    """Upper estimate of the stage's mode solves: per source, bands x the 5-degree azimuth bins the points
+    cover (one bin without wind)."""
+    pts = []
+    if field_arrays is not None:
+        pts.append(np.asarray(field_arrays.grid.points(), float)[:, :2])
+    if setup.receivers_xyz is not None:
+        pts.append(np.asarray(setup.receivers_xyz, float)[:, :2])
+    if not pts:
+        return 0
+    xy = np.concatenate(pts)
+    n_f = len(job.field.frequencies_hz) if job.field is not None else 8
+    total = 0
+    for src in job.sources:
+        bins = 1
+        if wind is not None:
+            d = xy - np.asarray(src.position, float)[None, :2]
+            az = np.degrees(np.arctan2(d[:, 1], d[:, 0]))
+            bins = int(np.unique(np.round(az / _AZIMUTH_BIN_DEG)).size)
+        total += bins * n_f
+    return total
 
 
 def _shadow_energy(
@@ -158,7 +183,18 @@ def stage_refractive_shadow(
     if field_arrays is not None and "field_source" not in field_arrays.arrays:
         log.stages["refractive_shadow"] = "skipped: voxel fields carry no per-point source codes"
         return None
+    setting = job.field.refractive_shadow if job.field is not None else "auto"
+    if setting == "off":
+        log.stages["refractive_shadow"] = "skipped: field.refractive_shadow is 'off'"
+        return None
     ground_z, _ = _ground(job, surfaces)
+    solves = _mode_solves(job, wind, field_arrays, setup)
+    if setting == "auto" and solves > SHADOW_AUTO_MAX_SOLVES:
+        log.stages["refractive_shadow"] = (
+            f"skipped: about {solves} mode solves (sources x bands x azimuth bins) is over the 'auto' limit of "
+            f"{SHADOW_AUTO_MAX_SOLVES} (0.3-10 s each); set field.refractive_shadow to 'on' to run it"
+        )
+        return None
     if not _needed(job, profile, wind, ground_z):
         log.stages["refractive_shadow"] = "skipped: no upward refraction from any source (no refractive shadow); " + (
             "turbulence given but unused" if job.turbulence is not None else "turbulence off"

@@ -45,7 +45,9 @@ class FieldSpec(BaseModel):
     half-width at caustics (default half a wavelength at the bands' geometric-mean frequency).
     ``heights``: "absolute" (world z) or "above_ground" (the map product: point (i, j, k) sits at
     ``origin_z + k * spacing_z`` above the ground under it, terrain included; beams only; field.vti then
-    holds the grid in (x, y, height above ground)).
+    holds the grid in (x, y, height above ground)). ``refractive_shadow``: the creeping-wave stage
+    (engine/shadow_stage.py): "auto" runs it when it needs at most SHADOW_AUTO_MAX_SOLVES mode solves
+    (sources x bands x 5-degree azimuth bins with wind; each 0.3-10 s), "on" always, "off" never.
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -65,6 +67,7 @@ class FieldSpec(BaseModel):
     absorption: bool = True
     receiver_height_m: float = Field(default=4.0, ge=0.0, le=MAX_LENGTH_M)
     sample_fraction: float = Field(default=0.5, gt=0.0, le=2.0)
+    refractive_shadow: Literal["auto", "on", "off"] = "auto"
 
     @field_validator("spacing")
     @classmethod

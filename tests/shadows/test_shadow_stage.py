@@ -121,3 +121,26 @@ def test_homogeneous_air_skips_the_stage():
         }
     )
     assert run_job(job).report["stages"]["refractive_shadow"].startswith("skipped: no upward refraction")
+
+
+@pytest.mark.parametrize(("setting", "bands", "expected"), [("auto", 17, "over the 'auto' limit of 16"),
+                                                            ("off", 1, "is 'off'")])  # fmt: skip
+def test_the_stage_is_bounded_and_can_be_switched_off(setting, bands, expected):
+    job = Job.model_validate(
+        {
+            "name": "bounded",
+            "scene": {"domain": {"min": [-20, -20, 0], "max": [420, 20, 60]}},
+            "profile": {"kind": "log", "c0": 340.0, "b": -1.0, "z_g": 1.0},
+            "sources": [{"position": [0.0, 0.0, 2.0]}],
+            "rays": {"elevation_deg": {"min": -30, "max": 30, "count": 61}, "max_time_s": 1.5, "max_reflections": 2},
+            "field": {
+                "origin": [20, 0, 1.5],
+                "spacing": [40, 1, 1],
+                "shape": [10, 1, 1],
+                "frequencies_hz": [100.0 + 10.0 * i for i in range(bands)],
+                "refractive_shadow": setting,
+            },
+            "outputs": ["field", "report"],
+        }
+    )
+    assert expected in run_job(job).report["stages"]["refractive_shadow"]
