@@ -188,16 +188,16 @@ def stage_refractive_shadow(
         log.stages["refractive_shadow"] = "skipped: field.refractive_shadow is 'off'"
         return None
     ground_z, _ = _ground(job, surfaces)
+    if not _needed(job, profile, wind, ground_z):
+        log.stages["refractive_shadow"] = "skipped: no upward refraction from any source (no refractive shadow); " + (
+            "turbulence given but unused" if job.turbulence is not None else "turbulence off"
+        )
+        return None
     solves = _mode_solves(job, wind, field_arrays, setup)
     if setting == "auto" and solves > SHADOW_AUTO_MAX_SOLVES:
         log.stages["refractive_shadow"] = (
             f"skipped: about {solves} mode solves (sources x bands x azimuth bins) is over the 'auto' limit of "
             f"{SHADOW_AUTO_MAX_SOLVES} (0.3-10 s each); set field.refractive_shadow to 'on' to run it"
-        )
-        return None
-    if not _needed(job, profile, wind, ground_z):
-        log.stages["refractive_shadow"] = "skipped: no upward refraction from any source (no refractive shadow); " + (
-            "turbulence given but unused" if job.turbulence is not None else "turbulence off"
         )
         return None
     t0 = time.perf_counter()
