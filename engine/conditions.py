@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from bentray.engine.executors import Executor
-from bentray.engine.export.lden import lden
+from bentray.engine.export.lden import energy_sum, lden
 from bentray.engine.field_sources import COMBINATION
 from bentray.engine.result import JobOutcome, concat_traces
 from bentray.engine.run import Prepared, ProgressFn, prepare_medium, prepare_scene, run_prepared
@@ -89,10 +89,6 @@ def _period_levels(
     return out
 
 
-def _group_sum(levels: list[np.ndarray]) -> np.ndarray:
-    return _level(sum(_energy(level) for level in levels))  # type: ignore[arg-type]
-
-
 def _combine_fields(job: Job, runs: list[ConditionRun], offsets: list[tuple[float, float, float]]) -> Any:
     first = runs[0].outcomes[0].field
     if first is None:
@@ -104,7 +100,7 @@ def _combine_fields(job: Job, runs: list[ConditionRun], offsets: list[tuple[floa
         name = run.condition.name
         fields: list[Any] = [o.field for o in run.outcomes]
         for key in spl_names:
-            arrays[f"{key}__{name}"] = _group_sum([f.arrays[key] for f in fields])
+            arrays[f"{key}__{name}"] = energy_sum([f.arrays[key] for f in fields])
         per_condition.append([f.arrays["spl_a"] for f in fields])
         if "field_source" in fields[0].arrays:  # what produced the level (engine/field_sources.py), per condition
             codes = np.asarray([f.arrays["field_source"] for f in fields])
@@ -146,7 +142,7 @@ def _combine_receivers(job: Job, runs: list[ConditionRun], offsets: list[tuple[f
         tables: list[Any] = [o.receivers for o in run.outcomes]
         for col in spl_cols:
             key = f"{col}__{name}"
-            values[key] = _group_sum([np.array([row[col] for row in t.rows], float) for t in tables])
+            values[key] = energy_sum([np.array([row[col] for row in t.rows], float) for t in tables])
             columns.append(key)
         per_condition.append([np.array([row["spl_a_inc"] for row in t.rows], float) for t in tables])
     indicators = _period_levels(job, per_condition, offsets)

@@ -29,6 +29,7 @@ import numpy as np
 
 from bentray.engine.acoustics.refractive_shadow import refractive_shadow_energy, upward_refracting
 from bentray.engine.acoustics.weighting import a_weighting_db
+from bentray.engine.diffraction.stage import _field_points, _ground
 from bentray.engine.field_sources import COMBINATION, NONE, REFRACTIVE_SHADOW, Contribution, combine
 from bentray.engine.field_sources import counts as source_counts
 
@@ -37,12 +38,6 @@ __all__ = ["stage_refractive_shadow"]
 SHADOW_AUTO_MAX_SOLVES = 16  # field.refractive_shadow "auto": at most this many mode solves (~0.3-10 s each)
 _AZIMUTH_BIN_DEG = 5.0  # refractive_shadow_energy's default azimuth bin with wind
 _AZIMUTH_PROBES = 36  # directions tested for upward refraction when deciding whether the stage is needed
-
-
-def _ground(job: Any, surfaces: Any) -> Any:
-    from bentray.engine.diffraction.stage import _ground as ground
-
-    return ground(job, surfaces)
 
 
 def _needed(job: Any, profile: Any, wind: Any, ground_z: Any) -> bool:
@@ -123,8 +118,6 @@ def _rel_of(arrays: dict[str, np.ndarray], labels: list[str]) -> np.ndarray:
 
 
 def _apply_field(job: Any, profile: Any, wind: Any, surfaces: Any, setup: Any, field_arrays: Any) -> dict[str, Any]:
-    from bentray.engine.diffraction.stage import _field_points
-
     spec = job.field
     ground_z, sigma = _ground(job, surfaces)
     labels = list(spec.labels)
