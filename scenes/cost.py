@@ -20,6 +20,13 @@ elementary operations, with the formula stated where it is computed:
   ``rays x crossings x cells per crossing`` with cells per crossing = domain diagonal / (largest extent
   / 200) (the tets default smallest cell; adaptive sizings make few cells where the medium is smooth, so
   ``solver.d_min_m`` does not enter), capped by ``max_steps``.
+- ``eigenray_steps``: the eigenray search (engine/eigenrays.py) per (source, receiver) pair it runs: a
+  bracket fan of ``eigenrays.elevations`` rays plus single-ray Newton probes, at most
+  :data:`EIGENRAY_PROBES_PER_REFLECTION` x (max_reflections + 1) probes of 1 ray (parabolic curve:
+  paraxial Jacobian) or 5 rays (other curves: central differences), each ray costed like a fan ray
+  (crossings x cells per crossing). Measured with a wrapped ``eigenrays._trace_to`` over 4 receivers at
+  50-900 m and homogeneous, linear-c and log (b = +-1) profiles: 11-1132 probe calls and 731-1872 rays per
+  pair (721-elevation fan), i.e. at most 164 probes per reflection count allowed.
 - ``mesh_seconds``: the media-mesh build (:func:`estimate_mesh`), ``cells x MESH_SECONDS_PER_CELL`` of
   the mesher the job gets (measured on a 2-core machine shared with other work, 2026-12-01,
   ``python -m bentray.engine.bench.mesh_time``: build time was proportional to the cell count, see
@@ -78,6 +85,9 @@ TET_CELLS_PER_POINT = 6.0
 BUILDINGS_TRIANGLE_FACTOR = 1.6
 ESTIMATE_NODES = 100_000  # sizing-grid nodes of the tets estimate (the engine's grid: up to 1e6)
 FCC_MAX_POINTS = 2_000_000  # engine/mesh/fcc.fcc_resample's max_points: more is refused by the mesher
+# eigenray probes per (source, receiver) pair and allowed reflection count: the measured largest (164, module
+# docstring) rounded up
+EIGENRAY_PROBES_PER_REFLECTION = 200
 DEFAULT_MESH_SECONDS = 600.0  # default budget of one job's mesh build (BENTRAY_MAX_MESH_SECONDS)
 # profile kinds that vary with z only (engine Profile.stratified): slabs, no 3D mesh, over flat ground
 _STRATIFIED_KINDS = (
@@ -139,6 +149,7 @@ class CostEstimate:
     rays_bytes: int
     field_deposits: float
     ray_steps: float
+    eigenray_steps: float = 0.0
 
     @property
     def memory_bytes(self) -> int:
@@ -184,7 +195,9 @@ def estimate_cost(job: Any, threads: int) -> CostEstimate:
             h = spec.sample_fraction * min(spec.spacing)
             deposits = n_rays * crossings * near_grid / h
     d_min = max(extent) / 200.0
-    steps = n_rays * min(float(job.rays.max_steps), crossings * max(diagonal / d_min, 1.0))
+    steps_per_ray = min(float(job.rays.max_steps), crossings * max(diagonal / d_min, 1.0))
+    steps = n_rays * steps_per_ray
+    eigen_steps = _eigenray_rays(job) * steps_per_ray
     # a job with conditions runs once per condition (engine/conditions.py) and keeps each condition's and
     # emission group's levels (per-point arrays, a few per band) until they are combined
     runs = max(1, len(getattr(job, "conditions", None) or []))
@@ -193,7 +206,22 @@ def estimate_cost(job: Any, threads: int) -> CostEstimate:
         kept = runs * n_groups * (spec.n_points * (4 * len(spec.frequencies_hz) + 4) * 8 if spec is not None else 0)
         paths, field_bytes = paths * runs, field_bytes + kept
         deposits, steps, n_rays = deposits * runs, steps * runs, n_rays * runs
-    return CostEstimate(paths, int(field_bytes), n_rays * RAY_STATE_BYTES, float(deposits), float(steps))
+    return CostEstimate(
+        paths, int(field_bytes), n_rays * RAY_STATE_BYTES, float(deposits), float(steps), float(eigen_steps)
+    )
+
+
+def _eigenray_rays(job: Any) -> float:
+    """Rays the eigenray search traces (module docstring), 0 when the job does not run it."""
+    from bentray.engine.eigenray_stage import eigenray_decision
+
+    receivers = getattr(job, "receivers", None) or []
+    if not receivers or eigenray_decision(job) is not None:
+        return 0.0
+    pairs = len(receivers) * len(job.sources)
+    rays_per_probe = 1 if job.solver.mesh_curve == "parabolic" else 5
+    probes = EIGENRAY_PROBES_PER_REFLECTION * (job.rays.max_reflections + 1) * rays_per_probe
+    return float(pairs * (job.eigenrays.elevations + probes))
 
 
 @dataclass(frozen=True)
@@ -458,6 +486,13 @@ def cost_problems(job: Any, limits: CostLimits, base_dir: str | Path | None = No
             f"rays: an estimated {est.ray_steps:.3g} cell crossings (rays x domain crossings x diagonal / smallest "
             f"cell); the limit is {limits.ray_steps:.3g}: use fewer rays, fewer reflections, a shorter "
             "max_time_s or a larger solver.d_min_m"
+        )
+    if est.eigenray_steps > limits.ray_steps:
+        lines.append(
+            f"eigenrays.enabled: the eigenray search needs an estimated {est.eigenray_steps:.3g} cell crossings "
+            f"(source-receiver pairs x (eigenrays.elevations + {EIGENRAY_PROBES_PER_REFLECTION} probes per "
+            f"reflection allowed) x crossings per ray); the limit is {limits.ray_steps:.3g}: use fewer receivers, "
+            "fewer eigenrays.elevations or rays.max_reflections, or set eigenrays.enabled to 'off'"
         )
     lines.extend(mesh_problems(job, limits, base_dir))
     return lines
