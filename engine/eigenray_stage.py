@@ -166,7 +166,14 @@ def run_eigenrays(
         "not_converged": {job.receivers[i].id: failures[i] for i in range(n_p) if failures[i]},
         "method": (
             "brackets in a vertical fan of "
-            f"{spec.elevations} elevations in each receiver's azimuth, Newton with the "
+            f"{spec.elevations} elevations in each receiver's azimuth"
+            + (
+                f" and toward its image in each of the {models[0].walls.shape[0]} building walls that faces both "
+                "source and receiver"
+                if models and models[0].walls.shape[0]
+                else ""
+            )
+            + ", Newton with the "
             + ("paraxial Jacobian" if job.solver.mesh_curve == "parabolic" else "central-difference Jacobian")
             + f", converged to {spec.tolerance_m:g} m"
         ),

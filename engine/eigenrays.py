@@ -6,8 +6,18 @@ Search, per (source, receiver):
    ``(-90, 90)`` deg): each ray's sampled path gives the height ``z(R)`` and time where it first reaches
    the receiver's horizontal range ``R``; the exact probe of the ray at that time gives its reflection
    count ``k``. Consecutive elevations with the same ``k`` between which ``z(R) - z_r`` changes sign
-   bracket one arrival (direct, ground-reflected, each branch of a refracted multipath). Arrivals out of
-   that vertical plane (lateral reflections off walls) are not searched.
+   bracket one arrival (direct, ground-reflected, each branch of a refracted multipath).
+   **Wall reflections** (arrivals out of that vertical plane): for every reflecting vertical wall
+   (``RayModel.walls``, the buildings' outer walls) with the source and the receiver in front of it, the
+   receiver's mirror image ``r'`` in the wall's plane gives the azimuth and the *unfolded* range ``R'`` of
+   the wall-reflected arrivals (a vertical wall mirrors the horizontal path and keeps its length). If
+   the straight horizontal line from the source to ``r'`` crosses the wall segment (the horizontal path
+   of a stratified medium without wind is straight; ``WALL_MARGIN`` of the wall's length allowed for
+   wind), a second fan is traced at that azimuth, and each ray's height is read where its horizontal arc
+   length (not its projected distance) first reaches ``R'``; only crossings nearer to ``r`` than to ``r'``
+   count (rays that passed over or beside the wall go on toward the image). Its sign changes bracket
+   the arrivals with one wall reflection (and any ground reflections), refined as below. Arrivals
+   with two or more wall reflections are not searched.
 2. **Refine** each bracket by Newton in the launch angles ``gamma = (el, az)``: probe the ray at time
    ``t`` (the kernels' exact state at a given travel time), split the miss ``r - x(t)`` into its part
    along the tangent (which moves ``t`` by ``along / c``) and across it, and solve
@@ -60,6 +70,7 @@ CAUSTIC_SAMPLE_M = 5.0  # spacing (m of arc) of the det[X1, X2, T] samples that 
 MAX_CAUSTIC_SAMPLES = 400
 SUBDIVISIONS = 8  # sub-intervals of a bracket interval that straddles a branch boundary
 MAX_DEPTH = 4  # such splits in a row (8^4: a 0.25 deg fan step resolved to 6e-5 deg)
+WALL_MARGIN = 0.05  # a wall's bracket fan runs where the source-image line crosses the wall within 5 % of its length
 
 
 @dataclass(frozen=True)
@@ -70,7 +81,9 @@ class RayModel:
     c_ref : reference speed (m/s); wind : (code, params) or None; origin : (3,) source position (m, world
     frame); start_cell : the cell that contains it; max_reflections, max_steps : the job's ray limits.
     tables : per-band ground table and absorption (None: spreading only, no per-band amplitudes);
-    frequencies_hz : (F,) the bands of ``tables``.
+    frequencies_hz : (F,) the bands of ``tables``. walls : (W, 6) reflecting vertical walls [x0, y0, x1,
+    y1, z_lo, z_hi] (m, world frame), each with its outside on the right of x0 -> x1 (a counter-clockwise
+    footprint's edges); searched for single wall reflections (module docstring). Empty: none.
     """
 
     mesh: CellMesh
@@ -83,6 +96,7 @@ class RayModel:
     wind: tuple[int, np.ndarray] | None = None
     tables: BeamTables | None = None
     frequencies_hz: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    walls: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
 
 
 @dataclass(frozen=True)
@@ -343,24 +357,44 @@ class _Bracket(NamedTuple):
     reflections: int
 
 
-def _range_crossings(res, origin: np.ndarray, h0: np.ndarray, rng: float, z_r: float):
+class _Target(NamedTuple):
+    """Where a fan's rays are read: at horizontal range ``rng`` along ``h0`` (projected distance), or, with
+    ``image`` (3,) set, where their horizontal arc length first reaches ``rng`` and only if nearer to the
+    receiver ``r`` than to its wall image."""
+
+    r: np.ndarray
+    rng: float
+    h0: np.ndarray
+    image: np.ndarray | None = None
+
+
+def _range_crossings(res, origin: np.ndarray, target: _Target):
     """Per fan ray: (f = z(R) - z_r, time at R) at the first sampled crossing of the range R (NaN: none)."""
     paths = res.paths
     n = res.position.shape[0]
     f = np.full(n, np.nan)
     t_cross = np.full(n, np.nan)
+    rng = target.rng
     for i in range(n):
         a, b = int(paths.offsets[i]), int(paths.offsets[i + 1])
         pts = paths.points[a:b]
         if pts.shape[0] < 2:
             continue
-        rho = (pts[:, :2] - origin[:2]) @ h0
+        if target.image is None:
+            rho = (pts[:, :2] - origin[:2]) @ target.h0
+        else:
+            steps = np.hypot(np.diff(pts[:, 0]), np.diff(pts[:, 1]))
+            rho = np.concatenate([[0.0], np.cumsum(steps)])
         up = np.nonzero((rho[:-1] < rng) & (rho[1:] >= rng))[0]
         if up.size == 0:
             continue
         j = int(up[0])
         u = (rng - rho[j]) / (rho[j + 1] - rho[j])
-        f[i] = pts[j, 2] + u * (pts[j + 1, 2] - pts[j, 2]) - z_r
+        if target.image is not None:
+            xy = pts[j, :2] + u * (pts[j + 1, :2] - pts[j, :2])
+            if np.hypot(*(xy - target.r[:2])) >= np.hypot(*(xy - target.image[:2])):
+                continue
+        f[i] = pts[j, 2] + u * (pts[j + 1, 2] - pts[j, 2]) - float(target.r[2])
         t_cross[i] = paths.time_s[a + j] + u * (paths.time_s[a + j + 1] - paths.time_s[a + j])
     return f, t_cross
 
@@ -373,13 +407,42 @@ class _Fan(NamedTuple):
     t: np.ndarray
 
 
-def _trace_fan(model: RayModel, els: np.ndarray, az: float, r: np.ndarray, st: SearchSettings, max_time_s: float):
-    d = r - model.origin
-    rng = math.hypot(float(d[0]), float(d[1]))
+def _trace_fan(model: RayModel, els: np.ndarray, az: float, target: _Target, st: SearchSettings, max_time_s: float):
     gammas = np.column_stack([els, np.full(els.size, az)])
     res = _trace_to(model, gammas, max_time_s, paraxial=False, path_samples=st.path_samples)
-    f, t_cross = _range_crossings(res, model.origin, d[:2] / rng, rng, float(r[2]))
+    f, t_cross = _range_crossings(res, model.origin, target)
     return _Fan(els, f, t_cross)
+
+
+def _direct_target(model: RayModel, r: np.ndarray) -> _Target:
+    d = r - model.origin
+    rng = math.hypot(float(d[0]), float(d[1]))
+    return _Target(r, rng, d[:2] / rng)
+
+
+def wall_images(origin: np.ndarray, r: np.ndarray, walls: np.ndarray) -> list[np.ndarray]:
+    """Mirror images (3,) of receiver ``r`` in the walls (W, 6) that can reflect toward it: source and
+    receiver in front of the wall (on its outside), and the horizontal source-image line crossing the wall
+    segment within WALL_MARGIN of its length (module docstring)."""
+    images = []
+    for x0, y0, x1, y1, _, _ in np.asarray(walls, float).reshape(-1, 6):
+        dx, dy = x1 - x0, y1 - y0
+        length = math.hypot(dx, dy)
+        if length <= 0.0:
+            continue
+        nx, ny = dy / length, -dx / length  # outward normal (outside on the right of x0 -> x1)
+        ds = (origin[0] - x0) * nx + (origin[1] - y0) * ny
+        dr = (r[0] - x0) * nx + (r[1] - y0) * ny
+        if ds <= 0.0 or dr <= 0.0:
+            continue
+        img = np.array([r[0] - 2.0 * dr * nx, r[1] - 2.0 * dr * ny, r[2]])
+        # the source-image line meets the wall's line at fraction ds / (ds + dr) of its length
+        u = ds / (ds + dr)
+        hit = origin[:2] + u * (img[:2] - origin[:2])
+        along = ((hit[0] - x0) * dx + (hit[1] - y0) * dy) / (length * length)
+        if -WALL_MARGIN <= along <= 1.0 + WALL_MARGIN:
+            images.append(img)
+    return images
 
 
 def _reflections_at(model: RayModel, fan: _Fan, az: float, idx: np.ndarray) -> dict[int, int]:
@@ -393,7 +456,7 @@ def _sign_changes(fan: _Fan) -> np.ndarray:
     return np.nonzero(ok[:-1] & ok[1:] & (np.sign(fan.f[:-1]) != np.sign(fan.f[1:])))[0]
 
 
-def _resolve(model, r, fan: _Fan, az, st, max_time_s, depth, out: list, failures: list) -> None:
+def _resolve(model, target: _Target, fan: _Fan, az, st, max_time_s, depth, out: list, failures: list) -> None:
     """Brackets from the sign changes of ``fan``; an interval whose ends differ in reflection count
     holds a branch boundary next to the root (a ray grazing the ground there): it is split into
     SUBDIVISIONS sub-intervals, at most MAX_DEPTH times (then it is reported, not dropped)."""
@@ -410,8 +473,8 @@ def _resolve(model, r, fan: _Fan, az, st, max_time_s, depth, out: list, failures
             out.append(_Bracket(np.array([el, az]), float(t), k[j]))
         elif depth < MAX_DEPTH:
             sub = np.linspace(fan.el[j], fan.el[j + 1], SUBDIVISIONS + 1)
-            _resolve(model, r, _trace_fan(model, sub, az, r, st, max_time_s), az, st, max_time_s, depth + 1, out,
-                     failures)  # fmt: skip
+            sub_fan = _trace_fan(model, sub, az, target, st, max_time_s)
+            _resolve(model, target, sub_fan, az, st, max_time_s, depth + 1, out, failures)
         else:
             failures.append(
                 EigenrayFailure(
@@ -429,19 +492,27 @@ def _brackets(
     d = r - model.origin
     if math.hypot(float(d[0]), float(d[1])) < 1e-6:
         return "the receiver is directly above or below the source (the bracket needs a horizontal offset)"
-    az0 = math.atan2(float(d[1]), float(d[0]))
     half = 0.5 * math.pi * (1.0 - 1.0 / st.elevations)
-    fan = _trace_fan(model, np.linspace(-half, half, st.elevations), az0, r, st, max_time_s)
+    els = np.linspace(-half, half, st.elevations)
+    targets = [_direct_target(model, r)]
+    for img in wall_images(model.origin, r, model.walls):
+        di = img - model.origin
+        rng = math.hypot(float(di[0]), float(di[1]))
+        targets.append(_Target(r, rng, di[:2] / rng, img))
     out: list[_Bracket] = []
     failures: list[EigenrayFailure] = []
-    _resolve(model, r, fan, az0, st, max_time_s, 0, out, failures)
+    for target in targets:
+        az = math.atan2(float(target.h0[1]), float(target.h0[0]))
+        fan = _trace_fan(model, els, az, target, st, max_time_s)
+        _resolve(model, target, fan, az, st, max_time_s, 0, out, failures)
     return out, failures
 
 
 def find_eigenrays(
     model: RayModel, receiver: np.ndarray, max_time_s: float, settings: SearchSettings | None = None
 ) -> EigenraySearch:
-    """Every eigenray from ``model``'s source to ``receiver`` (3,) m found in the vertical bracket fan.
+    """Every eigenray from ``model``'s source to ``receiver`` (3,) m found in the vertical bracket fans (the
+    receiver's azimuth, and each reflecting wall's image of it).
 
     max_time_s : the longest travel time searched (the job's rays.max_time_s).
     """

@@ -129,7 +129,7 @@ def run_prepared(prepared: Prepared, *, progress: ProgressFn, executor: Executor
     terrain = stage_terrain_screening(job, profile, wind, surfaces, setup, field_arrays, receivers, log)
     shadow = stage_refractive_shadow(job, profile, wind, surfaces, setup, field_arrays, receivers, log)
     report_progress("eigenrays", 0.93)
-    arrivals = stages.stage_eigenrays(job, profile, wind, setup, start_cells, fan, log)
+    arrivals = stages.stage_eigenrays(job, profile, wind, setup, start_cells, fan, log, surfaces)
     if receivers is not None and arrivals is not None:
         merge_into_receivers(receivers, arrivals, list(_band_labels(job, setup)))
     geometry = stages.stage_mesh_output(job, media, log, surfaces)

@@ -575,6 +575,24 @@ def stage_receivers(job: Job, traced: Traced, setup: FieldSetup, log: StageLog) 
     return table
 
 
+def reflecting_walls(job: Job, surfaces: SceneSurfaces | None) -> np.ndarray:
+    """(W, 6) outer walls [x0, y0, x1, y1, z_lo, z_hi] of the scene's buildings (m, local frame), outside
+    on the right of x0 -> x1 (footprints are counter-clockwise); barriers are not in the mesh (they do not
+    reflect) and courtyard walls are left out."""
+    from bentray.scenes.scene_models import footprint_bases
+
+    if surfaces is None or not surfaces.footprints:
+        return np.zeros((0, 6))
+    z0 = float(job.scene.box.min[2])
+    bases = footprint_bases(surfaces.terrain, surfaces.footprints, z0)
+    rows = []
+    for fp, base in zip(surfaces.footprints, bases, strict=True):
+        ring = np.asarray(fp.polygon, float)
+        for a, b in zip(ring, np.roll(ring, -1, axis=0), strict=True):
+            rows.append([a[0], a[1], b[0], b[1], float(base), float(base) + float(fp.height_m)])
+    return np.asarray(rows, float).reshape(-1, 6)
+
+
 def stage_eigenrays(
     job: Job,
     profile: Profile,
@@ -583,8 +601,10 @@ def stage_eigenrays(
     start_cells: np.ndarray,
     fan: LaunchFan,
     log: StageLog,
+    surfaces: SceneSurfaces | None = None,
 ) -> ArrivalTable | None:
-    """Eigenrays at the job's receivers (arrivals.csv): see :mod:`bentray.engine.eigenray_stage`."""
+    """Eigenrays at the job's receivers (arrivals.csv): see :mod:`bentray.engine.eigenray_stage`; the
+    buildings' outer walls of ``surfaces`` are searched for wall reflections."""
     why_not = eigenray_decision(job)
     if why_not is not None or setup.receivers_xyz is None:
         log.stages["eigenrays"] = why_not or "skipped: no receivers in the job"
@@ -593,6 +613,7 @@ def stage_eigenrays(
     tables = template.tables if isinstance(template, beam_field.BeamBuffers) else None
     settings = template.settings if isinstance(template, beam_field.BeamBuffers) else None
     freqs = np.asarray(settings.frequencies_hz if settings is not None else [], float)
+    walls = reflecting_walls(job, surfaces)
     models = []
     for s, src in enumerate(job.sources):
         first = int(np.nonzero(fan.source == s)[0][0])
@@ -608,6 +629,7 @@ def stage_eigenrays(
                 wind=wind,
                 tables=tables,
                 frequencies_hz=freqs,
+                walls=walls,
             )
         )
     with log.timed("eigenrays"):

@@ -26,7 +26,9 @@ elementary operations, with the formula stated where it is computed:
   paraxial Jacobian) or 5 rays (other curves: central differences), each ray costed like a fan ray
   (crossings x cells per crossing). Measured with a wrapped ``eigenrays._trace_to`` over 4 receivers at
   50-900 m and homogeneous, linear-c and log (b = +-1) profiles: 11-1132 probe calls and 731-1872 rays per
-  pair (721-elevation fan), i.e. at most 164 probes per reflection count allowed.
+  pair (721-elevation fan), i.e. at most 164 probes per reflection count allowed. Wall reflections
+  (lateral eigenrays) add one fan and its probes per wall the search takes for a pair (the same test,
+  ``engine.eigenrays.wall_images``, over the inline footprints).
 - ``mesh_seconds``: the media-mesh build (:func:`estimate_mesh`), ``cells x MESH_SECONDS_PER_CELL`` of
   the mesher the job gets (measured on a 2-core machine shared with other work, 2026-12-01,
   ``python -m bentray.engine.bench.mesh_time``: build time was proportional to the cell count, see
@@ -221,7 +223,38 @@ def _eigenray_rays(job: Any) -> float:
     pairs = len(receivers) * len(job.sources)
     rays_per_probe = 1 if job.solver.mesh_curve == "parabolic" else 5
     probes = EIGENRAY_PROBES_PER_REFLECTION * (job.rays.max_reflections + 1) * rays_per_probe
-    return float(pairs * (job.eigenrays.elevations + probes))
+    fans = pairs + _wall_fans(job)
+    return float(fans * (job.eigenrays.elevations + probes))
+
+
+def _wall_fans(job: Any) -> int:
+    """Wall fans of the eigenray search: (source, receiver, wall) triples that engine.eigenrays.wall_images
+    accepts, over the inline footprints' walls (a buildings file is not read here)."""
+    import numpy as np
+
+    from bentray.engine.eigenrays import wall_images
+
+    buildings = getattr(job.scene, "buildings", None)
+    if buildings is None or not buildings.footprints:
+        return 0
+    rows = []
+    for fp in buildings.footprints:
+        ring = np.asarray(fp.polygon, float)[:, :2]
+        if np.allclose(ring[0], ring[-1]):
+            ring = ring[:-1]
+        x, y = ring[:, 0], ring[:, 1]
+        if float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))) < 0.0:
+            ring = ring[::-1]  # counter-clockwise: outside on the right of each edge
+        for a, b in zip(ring, np.roll(ring, -1, axis=0), strict=True):
+            rows.append([a[0], a[1], b[0], b[1], 0.0, 0.0])
+    walls = np.asarray(rows, float)
+    fans = 0
+    for src in job.sources:
+        s = np.array([src.position[0], src.position[1], 0.0])
+        for rec in job.receivers:
+            x, y = rec.horizontal
+            fans += len(wall_images(s, np.array([x, y, 0.0]), walls))
+    return fans
 
 
 @dataclass(frozen=True)
