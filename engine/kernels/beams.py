@@ -25,7 +25,10 @@ count, caustic count): per group the accumulator holds ``sum w A exp(i w tau)`` 
 deficit where a group's neighbouring rays have already reflected (near the ground at grazing angles),
 and fades the field to zero within one beam width of a fan edge or a geometric shadow boundary.
 
-Accumulators are per thread slot (``slot``): no shared writes; the wrapper sums the slots in order.
+Accumulators are per thread slot (``slot``): no shared writes; the wrapper sums the slots in order. Each point's
+beam is computed by :func:`point_beam_terms` (pure: caller-provided work arrays, nothing accumulated) and added by
+:func:`_accumulate` (``+=`` into the slot); the CUDA kernel adds the same terms into one accumulator with atomics
+(engine/gpu/beam_device.py). Nothing a kernel calls here allocates (the work arrays live in :class:`BeamRay`).
 """
 
 from __future__ import annotations
@@ -252,10 +255,25 @@ def _turn(re, im, kmah):
     return -im, re
 
 
+# What point_beam_terms writes into its ``terms`` array (the beam of one chord at one point, before it is
+# accumulated): hat weight, intensity factor I / I_1m, foot interpolation u, travel time tau (s) and amplitude
+# w sqrt(I / I_1m) (tau and amplitude only in the coherent modes).
+PB_W = 0
+PB_REL_I = 1
+PB_U = 2
+PB_TAU = 3
+PB_AMP = 4
+PB_SIZE = 5
+POINT_SCRATCH = 15  # work array of point_beam_terms (transverse basis, X1, X2 and the tangent at the foot)
+
+
 @nb.njit(inline="always", **NJIT_FLAGS)
-def _point_beam(grid, acc, slot, chord, px, py, pz, v, scratch):
-    """The beam of ``chord`` (see :func:`deposit_chord`) at point (px, py, pz), accumulated into point v of
-    ``acc``; False if it does not own the point or its hat weight is zero. scratch : (15,) work array."""
+def point_beam_terms(grid, chord, px, py, pz, scratch, terms):
+    """The beam of ``chord`` (see :func:`deposit_chord`) at point (px, py, pz), written into ``terms`` (PB_*),
+    nothing accumulated; False if the chord does not own the point or its hat weight is zero.
+
+    scratch : (POINT_SCRATCH,) work array; terms : (PB_SIZE,) out array (both caller-provided: no allocation,
+    so the device kernel calls this too)."""
     sa, sb, amp_a, amp_b, group, kmah, launch_cos = chord
     da = (px - sa[S_X]) * sa[S_T] + (py - sa[S_X + 1]) * sa[S_T + 1] + (pz - sa[S_X + 2]) * sa[S_T + 2]
     if da < 0.0:
@@ -301,14 +319,11 @@ def _point_beam(grid, acc, slot, chord, px, py, pz, v, scratch):
         return False
     w = h1 * h2
     rel_i = launch_cos / (a11 * a22)
-    acc.weight[slot, group, v] += w
-    acc.hits[slot, v] += 1.0
-    n_f = grid.omega.shape[0]
-    if grid.mode != BEAM_COHERENT:
-        for f in range(n_f):
-            re = v_ * amp_a[0, f] + u * amp_b[0, f]
-            im = v_ * amp_a[1, f] + u * amp_b[1, f]
-            acc.energy[slot, group, f, v] += w * rel_i * (re * re + im * im)
+    terms[PB_W] = w
+    terms[PB_REL_I] = rel_i
+    terms[PB_U] = u
+    terms[PB_TAU] = 0.0
+    terms[PB_AMP] = 0.0
     if grid.mode != BEAM_INCOHERENT:
         # travel time to the point: foot time, along-tangent offset, wavefront curvature
         pd0 = 0.0
@@ -321,34 +336,80 @@ def _point_beam(grid, acc, slot, chord, px, py, pz, v, scratch):
             else:
                 pd0 += qp2 * pd
         tau = v_ * sa[S_TIME] + u * sb[S_TIME] + qa * (v_ * sa[S_SLOW] + u * sb[S_SLOW]) + 0.5 * pd0 / grid.c_ref
-        amp = w * math.sqrt(rel_i)
+        terms[PB_TAU] = tau
+        terms[PB_AMP] = w * math.sqrt(rel_i)
+    return True
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def band_energy(chord, terms, f):
+    """Band f's incoherent term ``w I / I_1m |A|^2`` of a point's beam (``terms`` of point_beam_terms)."""
+    amp_a = chord[2]
+    amp_b = chord[3]
+    u = terms[PB_U]
+    v_ = 1.0 - u
+    re = v_ * amp_a[0, f] + u * amp_b[0, f]
+    im = v_ * amp_a[1, f] + u * amp_b[1, f]
+    return terms[PB_W] * terms[PB_REL_I] * (re * re + im * im)
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def band_coherent(grid, chord, terms, f):
+    """Band f's coherent term ``w A sqrt(I / I_1m) exp(i omega tau)`` (re, im) of a point's beam."""
+    amp_a = chord[2]
+    amp_b = chord[3]
+    u = terms[PB_U]
+    v_ = 1.0 - u
+    re, im = _turn(v_ * amp_a[0, f] + u * amp_b[0, f], v_ * amp_a[1, f] + u * amp_b[1, f], chord[5])
+    ph = grid.omega[f] * terms[PB_TAU]
+    cph = math.cos(ph)
+    sph = math.sin(ph)
+    amp = terms[PB_AMP]
+    return amp * (re * cph - im * sph), amp * (re * sph + im * cph)
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _accumulate(grid, acc, slot, chord, v, terms):
+    """Add a point's beam (``terms``) to point v of accumulator slot ``slot`` (the CPU's per-slot ``+=``;
+    the device kernel adds the same terms with atomics, engine/gpu/beam_device.py)."""
+    group = chord[4]
+    acc.weight[slot, group, v] += terms[PB_W]
+    acc.hits[slot, v] += 1.0
+    n_f = grid.omega.shape[0]
+    if grid.mode != BEAM_COHERENT:
         for f in range(n_f):
-            re, im = _turn(v_ * amp_a[0, f] + u * amp_b[0, f], v_ * amp_a[1, f] + u * amp_b[1, f], kmah)
-            ph = grid.omega[f] * tau
-            cph = math.cos(ph)
-            sph = math.sin(ph)
-            acc.s_re[slot, group, f, v] += amp * (re * cph - im * sph)
-            acc.s_im[slot, group, f, v] += amp * (re * sph + im * cph)
+            acc.energy[slot, group, f, v] += band_energy(chord, terms, f)
+    if grid.mode != BEAM_INCOHERENT:
+        for f in range(n_f):
+            re, im = band_coherent(grid, chord, terms, f)
+            acc.s_re[slot, group, f, v] += re
+            acc.s_im[slot, group, f, v] += im
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _point_beam(grid, acc, slot, chord, px, py, pz, v, scratch, terms):
+    """The beam of ``chord`` at point (px, py, pz) accumulated into point v of ``acc``; False if it does not own
+    the point or its hat weight is zero. scratch, terms : work arrays of :func:`point_beam_terms`."""
+    if not point_beam_terms(grid, chord, px, py, pz, scratch, terms):
+        return False
+    _accumulate(grid, acc, slot, chord, v, terms)
     return True
 
 
 @nb.njit(**NJIT_FLAGS)
-def deposit_chord(grid, acc, slot, chord):
-    """Add the beam of the chord from sample ``sa`` to sample ``sb`` to every grid point it owns.
+def chord_reach(grid, sa, sb):
+    """Transverse reach (m) of the beams of the chord from sample sa to sb (the search box's margin)."""
+    return max(_half_width(sa, grid.dgamma[0], grid.dgamma[1], grid.w_min),
+               _half_width(sb, grid.dgamma[0], grid.dgamma[1], grid.w_min))  # fmt: skip
 
-    chord : tuple (sa, sb, amp_a, amp_b, group, kmah, launch_cos): sa, sb (SAMPLE_SIZE,) sample records;
-    amp_a, amp_b (2, F) complex amplitude factor per band at the two samples (reflection coefficients,
-    absorption; re in row 0, im in row 1); group, the arrival group of the chord; kmah, caustics passed
-    (the amplitude turns by (-i)^kmah, time factor exp(-i w t)); launch_cos, cos(launch elevation)
-    (I / I_1m = launch_cos / J). Returns the number of grid points that received a contribution.
-    """
-    sa = chord[0]
-    sb = chord[1]
-    reach = max(_half_width(sa, grid.dgamma[0], grid.dgamma[1], grid.w_min),
-                _half_width(sb, grid.dgamma[0], grid.dgamma[1], grid.w_min))  # fmt: skip
+
+@nb.njit(**NJIT_FLAGS)
+def chord_box(grid, sa, sb):
+    """Grid columns a chord may reach: (i0, i1, j0, j1, z_lo, z_hi), index ranges in x and y (inclusive,
+    empty when i0 > i1) and the height range (m) whose points are searched in each column."""
+    reach = chord_reach(grid, sa, sb)
     nx = grid.shape[0]
     ny = grid.shape[1]
-    nz = grid.shape[2]
     i0, i1 = _index_range(
         min(sa[S_X], sb[S_X]) - reach, max(sa[S_X], sb[S_X]) + reach, grid.origin[0], grid.spacing[0], nx
     )
@@ -361,7 +422,23 @@ def deposit_chord(grid, acc, slot, chord):
     )
     z_lo = min(sa[S_X + 2], sb[S_X + 2]) - reach
     z_hi = max(sa[S_X + 2], sb[S_X + 2]) + reach
-    scratch = np.empty(15)
+    return i0, i1, j0, j1, z_lo, z_hi
+
+
+@nb.njit(**NJIT_FLAGS)
+def deposit_chord(grid, acc, slot, chord, scratch, terms):
+    """Add the beam of the chord from sample ``sa`` to sample ``sb`` to every grid point it owns.
+
+    chord : tuple (sa, sb, amp_a, amp_b, group, kmah, launch_cos): sa, sb (SAMPLE_SIZE,) sample records;
+    amp_a, amp_b (2, F) complex amplitude factor per band at the two samples (reflection coefficients,
+    absorption; re in row 0, im in row 1); group, the arrival group of the chord; kmah, caustics passed
+    (the amplitude turns by (-i)^kmah, time factor exp(-i w t)); launch_cos, cos(launch elevation)
+    (I / I_1m = launch_cos / J). scratch (POINT_SCRATCH,), terms (PB_SIZE,) : the caller's work arrays.
+    Returns the number of grid points that received a contribution.
+    """
+    i0, i1, j0, j1, z_lo, z_hi = chord_box(grid, chord[0], chord[1])
+    ny = grid.shape[1]
+    nz = grid.shape[2]
     count = 0
     for i in range(i0, i1 + 1):
         px = grid.origin[0] + i * grid.spacing[0]
@@ -371,42 +448,57 @@ def deposit_chord(grid, acc, slot, chord):
             k0, k1 = _index_range(z_lo, z_hi, zo, grid.spacing[2], nz)
             for k in range(k0, k1 + 1):
                 v = (i * ny + j) * nz + k
-                if _point_beam(grid, acc, slot, chord, px, py, zo + k * grid.spacing[2], v, scratch):
+                if _point_beam(grid, acc, slot, chord, px, py, zo + k * grid.spacing[2], v, scratch, terms):
                     count += 1
     return count
 
 
 @nb.njit(**NJIT_FLAGS)
-def deposit_points(grid, acc, pts, slot, chord):
+def points_box(grid, pts, sa, sb):
+    """Receiver bins a chord may reach: (i0, i1, j0, j1, k0, k1), inclusive bin index ranges."""
+    reach = chord_reach(grid, sa, sb)
+    i0, i1 = _index_range(
+        min(sa[S_X], sb[S_X]) - reach - pts.bin_size,
+        max(sa[S_X], sb[S_X]) + reach,
+        pts.bin_origin[0],
+        pts.bin_size,
+        pts.bin_shape[0],
+    )
+    j0, j1 = _index_range(
+        min(sa[S_X + 1], sb[S_X + 1]) - reach - pts.bin_size,
+        max(sa[S_X + 1], sb[S_X + 1]) + reach,
+        pts.bin_origin[1],
+        pts.bin_size,
+        pts.bin_shape[1],
+    )
+    k0, k1 = _index_range(
+        min(sa[S_X + 2], sb[S_X + 2]) - reach - pts.bin_size,
+        max(sa[S_X + 2], sb[S_X + 2]) + reach,
+        pts.bin_origin[2],
+        pts.bin_size,
+        pts.bin_shape[2],
+    )
+    return i0, i1, j0, j1, k0, k1
+
+
+@nb.njit(**NJIT_FLAGS)
+def deposit_points(grid, acc, pts, slot, chord, scratch, terms):
     """The same for a list of receiver points (BeamPoints: binned on a coarse regular grid)."""
-    sa = chord[0]
-    sb = chord[1]
-    n_pts = pts.xyz.shape[0]
-    if n_pts == 0:
+    if pts.xyz.shape[0] == 0:
         return 0
-    reach = max(_half_width(sa, grid.dgamma[0], grid.dgamma[1], grid.w_min),
-                _half_width(sb, grid.dgamma[0], grid.dgamma[1], grid.w_min))  # fmt: skip
-    lo = np.empty(3, np.int64)
-    hi = np.empty(3, np.int64)
-    for a in range(3):
-        lo[a], hi[a] = _index_range(
-            min(sa[S_X + a], sb[S_X + a]) - reach - pts.bin_size,
-            max(sa[S_X + a], sb[S_X + a]) + reach,
-            pts.bin_origin[a],
-            pts.bin_size,
-            pts.bin_shape[a],
-        )
-    scratch = np.empty(15)
+    i0, i1, j0, j1, k0, k1 = points_box(grid, pts, chord[0], chord[1])
     count = 0
     ny = pts.bin_shape[1]
     nz = pts.bin_shape[2]
-    for i in range(lo[0], hi[0] + 1):
-        for j in range(lo[1], hi[1] + 1):
-            for k in range(lo[2], hi[2] + 1):
+    for i in range(i0, i1 + 1):
+        for j in range(j0, j1 + 1):
+            for k in range(k0, k1 + 1):
                 b = (i * ny + j) * nz + k
                 for e in range(pts.bin_start[b], pts.bin_start[b + 1]):
                     v = pts.bin_items[e]
-                    if _point_beam(grid, acc, slot, chord, pts.xyz[v, 0], pts.xyz[v, 1], pts.xyz[v, 2], v, scratch):
+                    if _point_beam(
+                        grid, acc, slot, chord, pts.xyz[v, 0], pts.xyz[v, 1], pts.xyz[v, 2], v, scratch, terms
+                    ):
                         count += 1
     return count
 
@@ -430,7 +522,9 @@ class BeamRay(NamedTuple):
 
     last, cur : (SAMPLE_SIZE,); amp_last, amp_cur : (2, F); amp0 : (F,) the ray's own amplitude factor
     (the source's directivity toward its launch direction; ones for an omnidirectional source); ist : (3,) int64 =
-    [has a last sample, caustics passed (kmah), sign of the last non-zero det[X1, X2, T] (+1/-1/0)].
+    [has a last sample, caustics passed (kmah), sign of the last non-zero det[X1, X2, T] (+1/-1/0)];
+    work : (POINT_SCRATCH,), terms : (PB_SIZE,) the work arrays of :func:`point_beam_terms` (allocated once per
+    ray here, not per chord).
     """
 
     last: np.ndarray
@@ -439,6 +533,8 @@ class BeamRay(NamedTuple):
     amp_cur: np.ndarray
     ist: np.ndarray
     amp0: np.ndarray
+    work: np.ndarray
+    terms: np.ndarray
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -450,6 +546,8 @@ def new_ray(n_f):
         np.zeros((2, n_f)),
         np.zeros(3, np.int64),
         np.ones(n_f),
+        np.zeros(POINT_SCRATCH),
+        np.zeros(PB_SIZE),
     )
 
 
@@ -486,15 +584,9 @@ class Beam(NamedTuple):
 
 
 @nb.njit(**NJIT_FLAGS)
-def ray_sample(beam, slot, ray, x, tangent, time, arc, slow, par, refl, start_new):
-    """Record a sample of the ray and deposit the chord from the previous one (unless start_new).
-
-    x, tangent : (3,) position (m) and unit tangent; time (s), arc (m), slow = 1/c (s/m) there;
-    par : (12,) paraxial derivatives (engine/kernels/paraxial.py); refl : tuple (n_refl, refl_cos,
-    refl_mat, launch_cos): reflections so far, their incidence cosines and materials, and cos(launch
-    elevation). start_new: the sample starts a new chord (launch, or the outgoing side of a reflection).
-    Returns the number of points reached.
-    """
+def sample_record(beam, ray, x, tangent, time, arc, slow, par, refl, start_new):
+    """First half of :func:`ray_sample`: fill ``ray.cur`` (caustic count, amplitudes); True when the chord
+    ``ray.last`` -> ``ray.cur`` is to be deposited (the caller deposits it, then calls :func:`sample_shift`)."""
     n_refl, refl_cos, refl_mat, launch_cos = refl
     cur = ray.cur
     for i in range(3):
@@ -519,22 +611,43 @@ def ray_sample(beam, slot, ray, x, tangent, time, arc, slow, par, refl, start_ne
     for f in range(ray.amp0.shape[0]):  # source directivity (x 1.0 exactly when omnidirectional)
         ray.amp_cur[0, f] *= ray.amp0[f]
         ray.amp_cur[1, f] *= ray.amp0[f]
-    reached = 0
-    if ray.ist[0] != 0 and not start_new:
-        kmah = ray.ist[1]
-        grid = beam.grid
-        if grid.mode != BEAM_OFF:
-            group = chord_group(grid.n_refl, n_refl, kmah)
-            chord = (ray.last, cur, ray.amp_last, ray.amp_cur, group, kmah, launch_cos)
-            reached = deposit_chord(grid, beam.acc, slot, chord)
-        if beam.pts.xyz.shape[0] > 0:
-            group = chord_group(beam.p_grid.n_refl, n_refl, kmah)
-            chord = (ray.last, cur, ray.amp_last, ray.amp_cur, group, kmah, launch_cos)
-            reached += deposit_points(beam.p_grid, beam.p_acc, beam.pts, slot, chord)
+    return ray.ist[0] != 0 and not start_new
+
+
+@nb.njit(**NJIT_FLAGS)
+def sample_shift(ray):
+    """Second half of :func:`ray_sample`: the current sample becomes the last one."""
     for i in range(SAMPLE_SIZE):
-        ray.last[i] = cur[i]
+        ray.last[i] = ray.cur[i]
     for f in range(ray.amp_cur.shape[1]):
         ray.amp_last[0, f] = ray.amp_cur[0, f]
         ray.amp_last[1, f] = ray.amp_cur[1, f]
     ray.ist[0] = 1
+
+
+@nb.njit(**NJIT_FLAGS)
+def ray_sample(beam, slot, ray, x, tangent, time, arc, slow, par, refl, start_new):
+    """Record a sample of the ray and deposit the chord from the previous one (unless start_new).
+
+    x, tangent : (3,) position (m) and unit tangent; time (s), arc (m), slow = 1/c (s/m) there;
+    par : (12,) paraxial derivatives (engine/kernels/paraxial.py); refl : tuple (n_refl, refl_cos,
+    refl_mat, launch_cos): reflections so far, their incidence cosines and materials, and cos(launch
+    elevation). start_new: the sample starts a new chord (launch, or the outgoing side of a reflection).
+    Returns the number of points reached.
+    """
+    reached = 0
+    if sample_record(beam, ray, x, tangent, time, arc, slow, par, refl, start_new):
+        n_refl = refl[0]
+        launch_cos = refl[3]
+        kmah = ray.ist[1]
+        grid = beam.grid
+        if grid.mode != BEAM_OFF:
+            group = chord_group(grid.n_refl, n_refl, kmah)
+            chord = (ray.last, ray.cur, ray.amp_last, ray.amp_cur, group, kmah, launch_cos)
+            reached = deposit_chord(grid, beam.acc, slot, chord, ray.work, ray.terms)
+        if beam.pts.xyz.shape[0] > 0:
+            group = chord_group(beam.p_grid.n_refl, n_refl, kmah)
+            chord = (ray.last, ray.cur, ray.amp_last, ray.amp_cur, group, kmah, launch_cos)
+            reached += deposit_points(beam.p_grid, beam.p_acc, beam.pts, slot, chord, ray.work, ray.terms)
+    sample_shift(ray)
     return reached
