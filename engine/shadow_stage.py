@@ -32,10 +32,10 @@ from bentray.engine.acoustics.weighting import a_weighting_db
 from bentray.engine.diffraction.stage import _field_points, _ground
 from bentray.engine.field_sources import COMBINATION, NONE, REFRACTIVE_SHADOW, Contribution, combine
 from bentray.engine.field_sources import counts as source_counts
+from bentray.scenes.cost import SHADOW_AUTO_MAX_SOLVES  # field.refractive_shadow "auto": at most this many solves
 
-__all__ = ["stage_refractive_shadow"]
+__all__ = ["SHADOW_AUTO_MAX_SOLVES", "stage_refractive_shadow"]
 
-SHADOW_AUTO_MAX_SOLVES = 16  # field.refractive_shadow "auto": at most this many mode solves (~0.3-10 s each)
 _AZIMUTH_BIN_DEG = 5.0  # refractive_shadow_energy's default azimuth bin with wind
 _AZIMUTH_PROBES = 36  # directions tested for upward refraction when deciding whether the stage is needed
 

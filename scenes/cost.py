@@ -29,6 +29,11 @@ elementary operations, with the formula stated where it is computed:
   pair (721-elevation fan), i.e. at most 164 probes per reflection count allowed. Wall reflections
   (lateral eigenrays) add one fan and its probes per wall the search takes for a pair (the same test,
   ``engine.eigenrays.wall_images``, over the inline footprints).
+- ``shadow_solves`` / ``shadow_seconds``: the refractive-shadow stage (engine/shadow_stage.py): one
+  creeping-wave mode solve per source, band and (with wind) 5-degree azimuth bin the field points and
+  receivers cover as seen from the source, x SHADOW_SECONDS_PER_SOLVE; 0 where no source can see
+  upward refraction from the job alone (no wind and a homogeneous or downward-refracting profile), with
+  ``field.refractive_shadow`` "off", or with "auto" above the stage's own limit (it then skips itself).
 - ``mesh_seconds``: the media-mesh build (:func:`estimate_mesh`), ``cells x MESH_SECONDS_PER_CELL`` of
   the mesher the job gets (measured on a 2-core machine shared with other work, 2026-12-01,
   ``python -m bentray.engine.bench.mesh_time``: build time was proportional to the cell count, see
@@ -91,6 +96,11 @@ FCC_MAX_POINTS = 2_000_000  # engine/mesh/fcc.fcc_resample's max_points: more is
 # docstring) rounded up
 EIGENRAY_PROBES_PER_REFLECTION = 200
 DEFAULT_MESH_SECONDS = 600.0  # default budget of one job's mesh build (BENTRAY_MAX_MESH_SECONDS)
+# One refractive-shadow mode solve (creeping.profile_modes at 100-1000 Hz, 12 modes): 5-25 s on a loaded core
+# (README, "Turbulence and refractive shadows"); the upper end is the rate used.
+SHADOW_SECONDS_PER_SOLVE = 25.0
+SHADOW_AUTO_MAX_SOLVES = 16  # engine/shadow_stage.py's 'auto' limit (kept equal there)
+DEFAULT_SHADOW_SECONDS = 1800.0  # budget of the refractive-shadow stage of one job
 # profile kinds that vary with z only (engine Profile.stratified): slabs, no 3D mesh, over flat ground
 _STRATIFIED_KINDS = (
     "homogeneous",
@@ -142,6 +152,7 @@ class CostLimits:
     ray_steps: float = 5e10
     threads: int = os.cpu_count() or 1
     mesh_seconds: float = dc_field(default_factory=_default_mesh_seconds)
+    shadow_seconds: float = DEFAULT_SHADOW_SECONDS
 
 
 @dataclass(frozen=True)
@@ -152,6 +163,11 @@ class CostEstimate:
     field_deposits: float
     ray_steps: float
     eigenray_steps: float = 0.0
+    shadow_solves: int = 0
+
+    @property
+    def shadow_seconds(self) -> float:
+        return self.shadow_solves * SHADOW_SECONDS_PER_SOLVE
 
     @property
     def memory_bytes(self) -> int:
@@ -208,8 +224,15 @@ def estimate_cost(job: Any, threads: int) -> CostEstimate:
         kept = runs * n_groups * (spec.n_points * (4 * len(spec.frequencies_hz) + 4) * 8 if spec is not None else 0)
         paths, field_bytes = paths * runs, field_bytes + kept
         deposits, steps, n_rays = deposits * runs, steps * runs, n_rays * runs
+    shadow = _shadow_solves(job) * runs
     return CostEstimate(
-        paths, int(field_bytes), n_rays * RAY_STATE_BYTES, float(deposits), float(steps), float(eigen_steps)
+        paths,
+        int(field_bytes),
+        n_rays * RAY_STATE_BYTES,
+        float(deposits),
+        float(steps),
+        eigenray_steps=float(eigen_steps),
+        shadow_solves=shadow,
     )
 
 
@@ -255,6 +278,62 @@ def _wall_fans(job: Any) -> int:
             x, y = rec.horizontal
             fans += len(wall_images(s, np.array([x, y, 0.0]), walls))
     return fans
+
+
+def _may_refract_upward(job: Any) -> bool:
+    """False only where the job alone rules upward refraction out: no wind and a homogeneous or
+    downward-refracting profile (log b >= 0, linear_c alpha >= 0, linear_n / linear_n2 alpha <= 0)."""
+    if getattr(job, "wind", None) is not None:
+        return True
+    p = job.profile
+    kind = getattr(p, "kind", None)
+    if kind == "homogeneous":
+        return False
+    if kind == "log":
+        return float(p.b) < 0.0
+    if kind == "linear_c":
+        return float(p.alpha) < 0.0
+    if kind in ("linear_n", "linear_n2"):
+        return float(p.alpha) > 0.0
+    return True
+
+
+def _azimuth_bins(src_xy: tuple[float, float], xy: list[tuple[float, float, float, float]]) -> int:
+    """5-degree azimuth bins that boxes (xmin, ymin, xmax, ymax) cover as seen from src_xy (72 when a box
+    holds the source): an upper count from the box corners."""
+    bins: set[int] = set()
+    for x0, y0, x1, y1 in xy:
+        if x0 <= src_xy[0] <= x1 and y0 <= src_xy[1] <= y1:
+            return 72
+        az = [math.degrees(math.atan2(y - src_xy[1], x - src_xy[0])) for x in (x0, x1) for y in (y0, y1)]
+        lo, hi = min(az), max(az)
+        if hi - lo > 180.0:  # the box straddles the -x axis
+            az = [a + 360.0 if a < 0 else a for a in az]
+            lo, hi = min(az), max(az)
+        bins.update(range(math.floor(lo / 5.0), math.ceil(hi / 5.0) + 1))
+    return min(len(bins), 72)
+
+
+def _shadow_solves(job: Any) -> int:
+    """Mode solves of the refractive-shadow stage (module docstring)."""
+    spec = job.field
+    setting = getattr(spec, "refractive_shadow", "auto") if spec is not None else "auto"
+    has_field = spec is not None and getattr(spec, "method", "voxels") == "beams"
+    receivers = list(getattr(job, "receivers", None) or [])
+    if setting == "off" or not (has_field or receivers) or not _may_refract_upward(job):
+        return 0
+    n_bands = len(spec.frequencies_hz) if spec is not None else 8
+    boxes = []
+    if has_field:
+        lo = spec.origin
+        hi = [o + (n - 1) * d for o, n, d in zip(spec.origin, spec.shape, spec.spacing, strict=True)]
+        boxes.append((lo[0], lo[1], hi[0], hi[1]))
+    boxes += [(x, y, x, y) for x, y in (r.horizontal for r in receivers)]
+    total = 0
+    for src in job.sources:
+        bins = _azimuth_bins((float(src.position[0]), float(src.position[1])), boxes) if job.wind is not None else 1
+        total += bins * n_bands
+    return 0 if setting == "auto" and total > SHADOW_AUTO_MAX_SOLVES else total
 
 
 @dataclass(frozen=True)
@@ -526,6 +605,13 @@ def cost_problems(job: Any, limits: CostLimits, base_dir: str | Path | None = No
             f"(source-receiver pairs x (eigenrays.elevations + {EIGENRAY_PROBES_PER_REFLECTION} probes per "
             f"reflection allowed) x crossings per ray); the limit is {limits.ray_steps:.3g}: use fewer receivers, "
             "fewer eigenrays.elevations or rays.max_reflections, or set eigenrays.enabled to 'off'"
+        )
+    if est.shadow_seconds > limits.shadow_seconds:
+        lines.append(
+            f"field.refractive_shadow: the refractive-shadow stage needs an estimated {est.shadow_solves} mode "
+            f"solves (sources x bands x 5-degree azimuth bins with wind), about {est.shadow_seconds:.3g} s at "
+            f"{SHADOW_SECONDS_PER_SOLVE:g} s each; the limit is {limits.shadow_seconds:g} s: use 'auto' (skips "
+            "the stage above its limit), 'off', fewer bands or fewer sources"
         )
     lines.extend(mesh_problems(job, limits, base_dir))
     return lines
