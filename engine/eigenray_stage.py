@@ -167,8 +167,7 @@ def run_eigenrays(
         "method": (
             "brackets in a vertical fan of "
             f"{spec.elevations} elevations in each receiver's azimuth, Newton with the "
-            + ("paraxial Jacobian" if job.solver.mesh_curve == "parabolic" else "central-difference Jacobian")
-            + f", converged to {spec.tolerance_m:g} m"
+            f"paraxial Jacobian, converged to {spec.tolerance_m:g} m"
         ),
     }
     return ArrivalTable(rows, tl_coh, tl_inc, counts, failures, stats)
