@@ -168,14 +168,12 @@ def run_eigenrays(
             "brackets in a vertical fan of "
             f"{spec.elevations} elevations in each receiver's azimuth"
             + (
-                f" and toward its image in each of the {models[0].walls.shape[0]} building walls that faces both "
-                "source and receiver"
+                f" and toward its image in each wall (of the {models[0].walls.shape[0]} building walls) that faces "
+                "both source and receiver"
                 if models and models[0].walls.shape[0]
                 else ""
             )
-            + ", Newton with the "
-            + ("paraxial Jacobian" if job.solver.mesh_curve == "parabolic" else "central-difference Jacobian")
-            + f", converged to {spec.tolerance_m:g} m"
+            + f", Newton with the paraxial Jacobian, converged to {spec.tolerance_m:g} m"
         ),
     }
     return ArrivalTable(rows, tl_coh, tl_inc, counts, failures, stats)

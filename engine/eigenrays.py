@@ -22,8 +22,8 @@ Search, per (source, receiver):
    ``t`` (the kernels' exact state at a given travel time), split the miss ``r - x(t)`` into its part
    along the tangent (which moves ``t`` by ``along / c``) and across it, and solve
    ``X_perp dgamma = q_perp`` (3x2 least squares) with the ray's own Jacobian: the paraxial derivatives
-   ``X_k = dx/dgamma_k`` for the parabolic curve (engine/kernels/paraxial.py), central differences of
-   launches (``h = 1e-6`` rad, the 5 rays traced in one call) for the other curves. A step that makes the
+   ``X_k = dx/dgamma_k`` of every analytic curve (engine/kernels/paraxial.py; central differences of
+   launches, ``h = 1e-6`` rad, remain as ``probe(..., central=True)`` for comparison). A step that makes the
    miss larger is halved (at most 8 times); a step that changes the reflection count is refused the same
    way. Converged when ``|r - x| <= tolerance_m``.
 3. **Describe** the arrival: exact travel time (``t + along / c`` at the last probe), arc length,
@@ -63,7 +63,7 @@ __all__ = [
     "launch_direction",
 ]
 
-FD_STEP_RAD = 1e-6  # central-difference step of the launch angles for curves without paraxial state
+FD_STEP_RAD = 1e-6  # central-difference step of the launch angles (probe(..., central=True))
 MAX_HALVINGS = 8  # step halvings per Newton iteration before a bracket is given up
 DUPLICATE_RAD = 1e-7  # two converged launches closer than this (and with the same reflections) are one ray
 CAUSTIC_SAMPLE_M = 5.0  # spacing (m of arc) of the det[X1, X2, T] samples that count caustics
@@ -190,9 +190,10 @@ def _trace_to(model: RayModel, gammas: np.ndarray, time_s: float, *, paraxial: b
     )
 
 
-def probe(model: RayModel, gamma: np.ndarray, time_s: float) -> Probe:
-    """The ray launched at gamma = (el, az) (rad) at travel time ``time_s``, with its launch Jacobian."""
-    if model.curve == "parabolic":
+def probe(model: RayModel, gamma: np.ndarray, time_s: float, *, central: bool = False) -> Probe:
+    """The ray launched at gamma = (el, az) (rad) at travel time ``time_s``, with its launch Jacobian: the
+    paraxial derivatives (exact), or with ``central`` central differences of 5 launches (h = FD_STEP_RAD)."""
+    if not central:
         res = _trace_to(model, np.asarray(gamma, float)[None, :], time_s, paraxial=True)
         assert res.paraxial is not None
         par = res.paraxial[0]

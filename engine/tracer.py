@@ -105,11 +105,9 @@ def check_material_table(mesh: CellMesh, field: FieldBuffers) -> None:
 def _field_args(
     field: FieldBuffers | BeamBuffers | None, n: int, curve: str, paraxial: bool, record_reflections: bool = False
 ) -> _FieldArgs:
-    """Kernel field arguments for ``n`` rays; ValueError when beams / paraxial rays are asked for a curve
-    other than parabolic or the field's weights do not have one row per ray. Reflection records: with a
+    """Kernel field arguments for ``n`` rays; ValueError when the field's weights do not have one row per ray
+    (paraxial rays and beams: every analytic curve, docs/physics.md §10). Reflection records: with a
     field, or when ``record_reflections`` (eigenrays) asks for them."""
-    if (paraxial or isinstance(field, BeamBuffers)) and curve != "parabolic":
-        raise ValueError("paraxial rays and beam fields need the parabolic curve")
     if field is not None and field.weights.shape[0] != n:
         raise ValueError("field weights must have one row per ray")
     if isinstance(field, BeamBuffers):
@@ -266,11 +264,11 @@ def trace(
     wind : (code, params) of engine.wind.wind_spec, or None (no wind: code 0 and an empty array go to the
         kernel). With wind each ray traces the effective medium c + u(x) . e, e its unit horizontal launch
         azimuth (physics.md section 7); ``mesh`` carries c alone (no per-cell wind arrays).
-    field may also be a beam_field.BeamBuffers (beam fields; parabolic curve only).
+    field may also be a beam_field.BeamBuffers (beam fields; every analytic curve).
     record_reflections : return each ray's first reflections (incidence cosine, face material) even
         without a field (eigenray amplitudes; any curve).
     paraxial : also return each ray's final paraxial state (TraceResult.paraxial, (n, 13): X_el, X_az,
-        P_el, P_az, |p|; parabolic curve only; docs/physics.md §10).
+        P_el, P_az, |p|; every analytic curve; docs/physics.md §10).
     kernel : "auto" (the lean kernel, kernels/lean.py, for a plain parabolic trace: no paths, field, wind,
         paraxial state or reflection records; the generic one otherwise), "generic" or "lean" (ValueError
         when the trace is not the lean kernel's case). Both give bit-identical final states.

@@ -581,21 +581,21 @@ class Job(_Model):
                     None,
                 )
             )
-        if self.receivers and self.solver.curve != "parabolic":
+        if self.receivers and self.solver.is_baseline:
             errors.append(
                 (
                     ("receivers",),
-                    f"receiver levels use paraxial beams, built for the parabolic curve, not "
-                    f"solver.curve {self.solver.curve!r}",
+                    f"receiver levels use paraxial beams of the analytic curves (parabolic, circular, n_linear), "
+                    f"not the numerical baseline solver.curve {self.solver.curve!r}",
                     None,
                 )
             )
-        if self.field is not None and self.field.method == "beams" and self.solver.curve != "parabolic":
+        if self.field is not None and self.field.method == "beams" and self.solver.is_baseline:
             errors.append(
                 (
                     ("field", "method"),
-                    f"beam fields use paraxial rays, built for the parabolic curve; "
-                    f"solver.curve is {self.solver.curve!r} (use field.method 'voxels' or the parabolic curve)",
+                    f"beam fields use the paraxial rays of the analytic curves; solver.curve is the numerical "
+                    f"baseline {self.solver.curve!r} (use field.method 'voxels' or an analytic curve)",
                     None,
                 )
             )

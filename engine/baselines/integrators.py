@@ -21,6 +21,13 @@ c_ref)`` built by :func:`make_media`; kind ``MEDIA_EXACT`` evaluates the closed-
 (exact_media.n_and_grad), ``MEDIA_MESH`` the CellMesh's linear model of the cell found by walking
 from ``cell`` (mesh_media.mesh_n_and_grad).
 
+Variational equations (docs/physics.md §10, "Numerical baselines"): with ``paraxial`` on, each accepted
+step also advances the launch-angle derivatives ``V = (X_el, X_az, P_el, P_az)`` (NV = 12,) of the
+state by the same tableau and the same stages applied to ``X' = P``, ``P' = J(x) X``, J = grad(n grad n)
+(:func:`var_step`): Runge-Kutta discretisation and differentiation commute, so this is the exact
+derivative of the fixed-length step's map. :func:`media_jac` gives J(x) X: for mesh media from the cell's
+linear model in closed form, for exact media by a central difference of the exact n grad n along X.
+
 Every stepper takes ``k1 = f(y0)`` precomputed (so a restarted step costs no new evaluation at its
 start) and returns False when the media was unphysical (n <= 0) or non-finite at a stage. Also here:
 the step-size controller (``controlled_step``) and event landing by restarted steps (``land``), which
@@ -36,7 +43,9 @@ import numba as nb
 import numpy as np
 
 from bentray.engine.baselines.exact_media import n_and_grad_at
+from bentray.engine.baselines.mesh_media import QUANTITY_C as QUANTITY_CODES_C
 from bentray.engine.baselines.mesh_media import QUANTITY_CODES, mesh_n_and_grad_at
+from bentray.engine.baselines.mesh_media import QUANTITY_N as QUANTITY_CODES_N
 from bentray.engine.constants import NJIT_FLAGS
 from bentray.engine.mesh.cells import CellMesh
 
@@ -70,9 +79,14 @@ __all__ = [
     "event_rate",
     "first_guess",
     "land",
+    "NV",
+    "media_jac",
+    "var_step",
 ]
 
 NY = 8  # state size: x(3), p(3), t, s
+NV = 12  # variational state: X_el, X_az (m/rad), P_el, P_az (1/rad)
+VAR_FD_M = 1e-5  # metres: step of media_jac's central difference on exact media
 
 MEDIA_EXACT = 0
 MEDIA_MESH = 1
@@ -483,3 +497,110 @@ def land(method, media, cell, sw, bracket, hk, kind, pl, t_end, eps):
             break
         hk = nxt
     return hk, ok, has, restarts
+
+
+@nb.njit(**NJIT_FLAGS)
+def media_jac(media, cell, x, v, out, k, scratch):
+    """out[k:k+3] = J(x) v with J = grad(n grad n) (1/m^2), the x-Jacobian of dp/dsigma, at x along v (3,).
+
+    Mesh media, in the cell containing x (traced quantity m linear with gradient g): n^2 -> J = 0,
+    n -> J = g g^T, c -> J = 3 c_ref^2 g g^T / m^4 (n grad n = -c_ref^2 g / m^3). Exact media: central
+    difference of the exact n grad n at x +- e v/|v|, e = VAR_FD_M (truncation (e/L)^2 for a profile
+    varying over L metres: 1e-10 at L = 1 m). scratch : (6,).
+    """
+    vn = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    if vn == 0.0:
+        out[k] = 0.0
+        out[k + 1] = 0.0
+        out[k + 2] = 0.0
+        return
+    if media[0] == MEDIA_MESH:
+        _, c = mesh_n_and_grad_at(media[3], media[4], media[5], media[6], media[7], media[8], media[9], cell, x,
+                                  scratch, 0)  # fmt: skip
+        q = media[8]
+        gx = media[7][c, 0]
+        gy = media[7][c, 1]
+        gz = media[7][c, 2]
+        f = 0.0
+        if q == QUANTITY_CODES_N:
+            f = 1.0
+        elif q == QUANTITY_CODES_C:
+            m = media[5][c] + gx * (x[0] - media[6][c, 0]) + gy * (x[1] - media[6][c, 1]) + gz * (x[2] - media[6][c, 2])
+            f = 3.0 * media[9] * media[9] / (m * m * m * m)
+        gv = f * (gx * v[0] + gy * v[1] + gz * v[2])
+        out[k] = gv * gx
+        out[k + 1] = gv * gy
+        out[k + 2] = gv * gz
+        return
+    e = VAR_FD_M / vn
+    xp = scratch[3:6]
+    for i in range(3):
+        xp[i] = x[i] + e * v[i]
+    n_p = n_and_grad_at(media[1], media[2], xp, scratch, 0)
+    fx = n_p * scratch[0]
+    fy = n_p * scratch[1]
+    fz = n_p * scratch[2]
+    for i in range(3):
+        xp[i] = x[i] - e * v[i]
+    n_m = n_and_grad_at(media[1], media[2], xp, scratch, 0)
+    out[k] = (fx - n_m * scratch[0]) / (2.0 * e)
+    out[k + 1] = (fy - n_m * scratch[1]) / (2.0 * e)
+    out[k + 2] = (fz - n_m * scratch[2]) / (2.0 * e)
+
+
+@nb.njit(**NJIT_FLAGS)
+def var_step(method, media, cell, y0, h, work, v0, v1, vw, rate):
+    """v1 (NV,) = the derivative of the step map y0 -> y1 (length h, stages k_j in work rows 0.. as the
+    accepted rk_step left them) applied to v0: the same tableau on X' = P, P' = J(x) X at the step's own
+    stage positions (recomputed from work bit for bit as rk_step formed them). DOPRI5's FSAL stage
+    (weight 0) is skipped. rate : (6,) or (0,): when given, also d(x1, p1)/dh, the step map's rate in its
+    length (a landing's length moves with the launch: dh = -(m.X1)/(m.rate_x)); it is f(y1) only to the
+    method's order. vw : (2 MAX_STAGES + 4, NV) scratch."""
+    n_st = STAGES[method]
+    ys = vw[MAX_STAGES]
+    vs = vw[MAX_STAGES + 1]
+    scratch = vw[MAX_STAGES + 2]
+    yd = vw[2 * MAX_STAGES + 3]
+    with_rate = rate.shape[0] == 6
+    for st in range(n_st):
+        if st == n_st - 1 and B[method, st] == 0.0:
+            break
+        for i in range(3):
+            acc = 0.0
+            for j in range(st):
+                acc += A[method, st, j] * work[j, i]
+            ys[i] = y0[i] + h * acc
+        for i in range(NV):
+            acc = 0.0
+            for j in range(st):
+                acc += A[method, st, j] * vw[j, i]
+            vs[i] = v0[i] + h * acc
+        row = vw[st]
+        for kk in range(2):
+            o = 3 * kk
+            for i in range(3):
+                row[o + i] = vs[6 + o + i]
+            media_jac(media, cell, ys, vs[o : o + 3], row, 6 + o, scratch)
+        if with_rate:  # d Y_st/dh = sum_j a_j (k_j + h dk_j/dh), dk_st/dh = J_f(Y_st) dY_st/dh
+            for i in range(6):
+                acc = 0.0
+                for j in range(st):
+                    acc += A[method, st, j] * (work[j, i] + h * vw[MAX_STAGES + 3 + j, i])
+                yd[i] = acc
+            rd = vw[MAX_STAGES + 3 + st]
+            for i in range(3):
+                rd[i] = yd[3 + i]
+            media_jac(media, cell, ys, yd[0:3], rd, 3, scratch)
+    for i in range(NV):
+        acc = 0.0
+        for j in range(n_st):
+            if B[method, j] != 0.0:
+                acc += B[method, j] * vw[j, i]
+        v1[i] = v0[i] + h * acc
+    if with_rate:
+        for i in range(6):
+            acc = 0.0
+            for j in range(n_st):
+                if B[method, j] != 0.0:
+                    acc += B[method, j] * (work[j, i] + h * vw[MAX_STAGES + 3 + j, i])
+            rate[i] = acc

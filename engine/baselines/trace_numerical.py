@@ -26,6 +26,17 @@ End states as in the analytic tracer: time_limit, reflection_limit, exited, step
 accepted steps), lost (n <= 0, non-finite state, step size underflow, or a mesh walk that did not
 converge). ``p`` is not renormalised to ``|p| = n(x)`` after a step unless ``renormalize=True``
 (the paper's baselines do not; the effect is measured in bench/baselines_probe.py).
+
+Paraxial state (``paraxial=True``; docs/physics.md §10, "Numerical baselines"): the launch-angle
+derivatives V = (X_el, X_az, P_el, P_az) start as the analytic tracer's (X = 0, P = n0 dd0/dgamma) and
+follow each accepted step by integrators.var_step (the step's own tableau and stages on the variational
+equations); a landing on a boundary plane projects them onto it (the neighbouring ray's landing step is
+dh = -(m.X)/(m.x_h) longer, x_h, p_h the step map's rates in its length: X += x_h dh, P += p_h dh), a
+reflection mirrors them, and
+renormalisation is differentiated. Euler's and RK4's fixed step length h = step_m / n(x) is differentiated too
+(dh = -h grad n.X / n).
+Not differentiated: the adaptive step-size choice, slides along grazed planes. The result's ``paraxial``
+column layout is the analytic tracer's (n, 13), its last column |p|.
 """
 
 from __future__ import annotations
@@ -40,8 +51,12 @@ from bentray.engine.baselines.integrators import (
     EVALS_PER_STEP,
     EVENT_PLANE,
     EVENT_TIME,
+    MAX_STAGES,
     MEDIA_MESH,
     METHOD_CODES,
+    METHOD_EULER,
+    METHOD_RK4,
+    NV,
     NY,
     advance,
     controlled_step,
@@ -52,6 +67,7 @@ from bentray.engine.baselines.integrators import (
     new_step_work,
     plane_g,
     rhs,
+    var_step,
 )
 from bentray.engine.baselines.mesh_media import WALK_FAILED, walk
 from bentray.engine.constants import (
@@ -74,7 +90,9 @@ from bentray.engine.constants import (
     STATUS_STEP_LIMIT,
     STATUS_TIME_LIMIT,
 )
-from bentray.engine.kernels.traverse import PathBuffers
+from bentray.engine.kernels.paraxial import launch as paraxial_launch
+from bentray.engine.kernels.paraxial import reflect as paraxial_reflect
+from bentray.engine.kernels.traverse import PAR_OUT_SIZE, PathBuffers
 from bentray.engine.mesh.cells import CellMesh, locate_points
 from bentray.engine.result import TraceResult, gather_paths, kernel_trace_result
 from bentray.engine.tracer import path_capacity
@@ -181,6 +199,7 @@ class NumParams(NamedTuple):
     renormalize: bool
     record: bool
     dt_sample: float
+    paraxial: bool
 
 
 class Bounds(NamedTuple):
@@ -194,13 +213,15 @@ class Bounds(NamedTuple):
 class NumRays(NamedTuple):
     """Per-ray inputs and outputs, row i for ray i: origins, directions (n, 3) m / any non-zero length;
     start_cells (n,) int64 (mesh media; -1: lost); out_state (n, STATE_SIZE) float64 and out_counts
-    (n, NCOUNT_SIZE) int64 (written; columns constants.STATE_* and COUNT_STATUS .. COUNT_CROSSINGS, NCOUNT_*)."""
+    (n, NCOUNT_SIZE) int64 (written; columns constants.STATE_* and COUNT_STATUS .. COUNT_CROSSINGS, NCOUNT_*);
+    out_par (n, PAR_OUT_SIZE) the final paraxial state (written when NumParams.paraxial; else (0, PAR_OUT_SIZE))."""
 
     origins: np.ndarray
     directions: np.ndarray
     start_cells: np.ndarray
     out_state: np.ndarray
     out_counts: np.ndarray
+    out_par: np.ndarray
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -425,9 +446,10 @@ def _apply_events(prm, sw, cnt, ev_kind, ev_tag, slide_tag, eps_t):
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
-def _step(media, bounds, prm, paths, sw, cnt, base, cell, h_next, t_last, eps_t):
+def _step(media, bounds, prm, paths, sw, cnt, base, cell, h_next, t_last, eps_t, vw):
     """One accepted step from sw.y0 (trial length h_next) with its events, path samples (ray's slice from
-    row ``base``) and the mesh walk; counters in cnt. Returns (status, cell, h_next, t_last)."""
+    row ``base``) and the mesh walk; counters in cnt. vw : the variational arrays (v0, v1, work), advanced
+    when prm.paraxial. Returns (status, cell, h_next, t_last)."""
     y0, y1, k1, knew = sw.y0, sw.y1, sw.k1, sw.knew
     n_per = EVALS_PER_STEP[prm.method]
     ok, has, h, h_next, rej = controlled_step(
@@ -467,6 +489,20 @@ def _step(media, bounds, prm, paths, sw, cnt, base, cell, h_next, t_last, eps_t)
         cnt[NCOUNT_EVALS] += 1
     if prm.record and y1[6] - y0[6] > prm.dt_sample:
         _emit_interior(paths, cnt, base, sw, h_end, prm.dt_sample)
+    v0, v1, vwork, vrate = vw
+    if prm.paraxial:
+        landed = ev_kind == EVENT_PLANE
+        # a fixed-step method's length h = step_m / n(x0) moves with the launch too (an adaptive one's
+        # controller is not differentiated); a landing's length is set by its plane instead
+        fixed = (prm.method == METHOD_EULER or prm.method == METHOD_RK4) and ev_kind == EVENT_NONE
+        with_rate = landed or fixed
+        var_step(prm.method, media, cell, y0, h_end, sw.work, v0, v1, vwork, vrate if with_rate else vrate[:0])
+        if landed:
+            _var_onto_plane(v1, sw.evp, vrate)
+        elif fixed:
+            _var_fixed_length(v0, v1, k1, h_end, vrate)
+        for i in range(NV):
+            v0[i] = v1[i]
     for i in range(NY):
         k1[i] = knew[i]
         y0[i] = y1[i]
@@ -480,15 +516,60 @@ def _step(media, bounds, prm, paths, sw, cnt, base, cell, h_next, t_last, eps_t)
         t_last = y0[6]
     refl_before = cnt[COUNT_REFLECTIONS]
     status = _apply_events(prm, sw, cnt, ev_kind, ev_tag, slide_tag, eps_t)
+    if prm.paraxial and cnt[COUNT_REFLECTIONS] > refl_before:
+        paraxial_reflect(v0, sw.evp if ev_kind == EVENT_PLANE and ev_tag == BOUNDARY_REFLECT else sw.grz)
     if prm.record and cnt[COUNT_REFLECTIONS] > refl_before and y0[6] > t_last:
         _emit(paths, cnt, base, y0)
         t_last = y0[6]
     if prm.renormalize and status == STATUS_RUNNING:
         pn = math.sqrt(y0[3] ** 2 + y0[4] ** 2 + y0[5] ** 2)
+        if prm.paraxial:
+            _var_renormalize(v0, y0, k1, pn)
         for i in range(3):
             y0[3 + i] *= k1[7] / pn
             k1[i] = y0[3 + i]
     return status, cell, h_next, t_last
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _var_onto_plane(v, pl, f1):
+    """The derivatives on the plane pl the step landed on: dsigma_k = -(m.X_k)/(m.x'), X_k += x' dsigma_k,
+    P_k += p' dsigma_k with (x', p') = f1[0:6] the step map's rates in its length (var_step)."""
+    mr = pl[0] * f1[0] + pl[1] * f1[1] + pl[2] * f1[2]
+    if mr == 0.0:
+        return
+    for k in range(2):
+        o = 3 * k
+        ds = -(pl[0] * v[o] + pl[1] * v[o + 1] + pl[2] * v[o + 2]) / mr
+        for i in range(3):
+            v[o + i] += f1[i] * ds
+            v[6 + o + i] += f1[3 + i] * ds
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _var_fixed_length(v0, v1, f0, h, rate):
+    """The fixed step length h = step_m / n(x0) of Euler and RK4 moves with the launch: dh_k = -h (grad n .
+    X_k(0)) / n = -h (f0[3:6] . X_k(0)) / n^2 (f0 = f(y0): f0[3:6] = n grad n, f0[7] = n); v1 += rate dh_k."""
+    n2 = f0[7] * f0[7]
+    for k in range(2):
+        o = 3 * k
+        dh = -h * (f0[3] * v0[o] + f0[4] * v0[o + 1] + f0[5] * v0[o + 2]) / n2
+        for i in range(3):
+            v1[o + i] += rate[i] * dh
+            v1[6 + o + i] += rate[3 + i] * dh
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _var_renormalize(v, y, f, pn):
+    """Derivative of p' = n(x) p/|p| (pn = |p|, f = f(y): f[3:6] = n grad n, f[7] = n):
+    P_k' = (grad n . X_k) p/|p| + (n/|p|) (P_k - p^ (p^.P_k))."""
+    n = f[7]
+    for k in range(2):
+        o = 3 * k
+        gx = (f[3] * v[o] + f[4] * v[o + 1] + f[5] * v[o + 2]) / n
+        pp = (y[3] * v[6 + o] + y[4] * v[7 + o] + y[5] * v[8 + o]) / pn
+        for i in range(3):
+            v[6 + o + i] = gx * y[3 + i] / pn + (n / pn) * (v[6 + o + i] - pp * y[3 + i] / pn)
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
@@ -534,6 +615,12 @@ def trace_one(media, bounds, prm, paths, rays, i):
     d_start = rays.directions[i]
     eps_t = TIME_LAND_REL * max(1.0, prm.max_time)
     status, n0, nrm = _launch(media, bounds, sw, cnt, rays.origins[i], d_start, cell)
+    vw = (np.zeros(NV), np.zeros(NV), np.zeros((2 * MAX_STAGES + 4, NV)), np.zeros(6))
+    if prm.paraxial and status == STATUS_RUNNING:
+        d_unit = np.empty(3)
+        for k in range(3):
+            d_unit[k] = d_start[k] / nrm
+        paraxial_launch(vw[0], d_unit, n0)
     if prm.record:
         _emit(paths, cnt, base, y0)
     t_last = 0.0
@@ -542,7 +629,7 @@ def trace_one(media, bounds, prm, paths, rays, i):
         if cnt[NCOUNT_STEPS] >= prm.max_steps:
             status = STATUS_STEP_LIMIT
             break
-        status, cell, h_next, t_last = _step(media, bounds, prm, paths, sw, cnt, base, cell, h_next, t_last, eps_t)
+        status, cell, h_next, t_last = _step(media, bounds, prm, paths, sw, cnt, base, cell, h_next, t_last, eps_t, vw)
     if prm.record and (cnt[NCOUNT_SAMPLES] == 0 or y0[6] > t_last):
         _emit(paths, cnt, base, y0)
     out_state = rays.out_state[i]
@@ -553,6 +640,11 @@ def trace_one(media, bounds, prm, paths, rays, i):
     out_state[STATE_TIME] = y0[6]
     out_state[STATE_LENGTH] = y0[7]
     cnt[COUNT_STATUS] = status
+    if prm.paraxial:
+        out_par = rays.out_par[i]
+        for k in range(NV):
+            out_par[k] = vw[0][k]
+        out_par[NV] = pn
 
 
 @nb.njit(**PARALLEL_FLAGS)
@@ -620,6 +712,7 @@ def trace_numerical(
     top: str = "open",
     renormalize: bool = False,
     stats: dict[str, np.ndarray] | None = None,
+    paraxial: bool = False,
 ) -> tuple[TraceResult, np.ndarray]:
     """Trace rays by numerical integration of the ray ODE; returns ``(TraceResult, restarts)``.
 
@@ -634,6 +727,8 @@ def trace_numerical(
     path_samples : samples per ray (0: none), as engine.tracer.trace (Hermite-interpolated inside long steps).
     stats : if a dict is given it receives (n,) int64 arrays "rejected" (rejected trial steps) and
         "evaluations" (right-hand-side evaluations).
+    paraxial : also integrate the variational equations (module docstring): TraceResult.paraxial (n, 13)
+        X_el, X_az, P_el, P_az and |p| (p the integrated state, not renormalised unless ``renormalize``).
     Returns the TraceResult (launch angles NaN, ``crossings`` = mesh cells crossed, ``nudges`` = 0,
     ``steps`` = accepted steps) and ``restarts`` (n,) int64: steps re-taken with a reduced length to
     land on a boundary or on the time limit.
@@ -650,7 +745,8 @@ def trace_numerical(
     n_slots = n * cap if record else 1
     paths = PathBuffers(np.zeros((n_slots, 3)), np.zeros(n_slots), np.zeros(n_slots), cap)
     out_counts = np.zeros((n, NCOUNT_SIZE), dtype=np.int64)
-    rays = NumRays(origins, directions, start_cells, np.zeros((n, STATE_SIZE)), out_counts)
+    out_par = np.full((n if paraxial else 0, PAR_OUT_SIZE), np.nan)
+    rays = NumRays(origins, directions, start_cells, np.zeros((n, STATE_SIZE)), out_counts, out_par)
     prm = NumParams(
         METHOD_CODES[method],
         float(max_time_s),
@@ -661,6 +757,7 @@ def trace_numerical(
         bool(renormalize),
         record,
         float(max_time_s) / max(path_samples, 1),
+        bool(paraxial),
     )
     trace_rays_numerical(med, Bounds(bplanes, btags), prm, paths, rays)
     gathered = gather_paths(paths.pts, paths.t, paths.s, out_counts[:, NCOUNT_SAMPLES], cap) if record else None
@@ -675,6 +772,7 @@ def trace_numerical(
         nudges=np.zeros(n, dtype=np.int64),
         steps=out_counts[:, NCOUNT_STEPS],
         paths=gathered,
+        paraxial=out_par if paraxial else None,
     )
     return result, out_counts[:, NCOUNT_RESTARTS].copy()
 

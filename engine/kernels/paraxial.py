@@ -20,6 +20,15 @@ azimuth). Inside one cell the parabolic map ``x(sigma) = x0 + p0 sigma + g sigma
 With wind the per-cell gradient is taken at the middle of the chord through the cell, which depends on
 the entry state; that dependence is not differentiated (first order in the cell size), nor are the
 rare slide and nudge moves (counted in the ray's nudges).
+
+Circular and n-linear curves (docs/physics.md §10, "Other curves"): their segments are set up from the
+entry point and the *unit* tangent, so between segments ``par`` keeps the same (X, P) form and each
+segment works on ``D_k = dT/dgamma_k`` instead: :func:`tangent_derivs` (P -> D at the segment start, with
+the |p| the previous segment ended with), :func:`along_curve` (X_k, D_k at a fixed curve parameter: the
+derivative of the closed-form curve with respect to its start state, through the cell's setup constants;
+and the curve's rates d x/d param, d T/d param), :func:`onto_face_rates` (the face projection with those
+rates) and :func:`to_p` (D -> P at the end, P_k = (grad n . X_k) T + n D_k with the cell's own model).
+The restart in a new cell needs no extra term there: the new cell's model enters through the setup.
 """
 
 from __future__ import annotations
@@ -28,9 +37,16 @@ import math
 
 import numba as nb
 
-from bentray.engine.constants import NJIT_FLAGS
+from bentray.engine.constants import CURVE_CIRCULAR, FACE_UNUSED, NJIT_FLAGS
+from bentray.engine.kernels.nlinear import arc_length as _nl_arc
+from bentray.engine.kernels.nlinear import height as _nl_height
+from bentray.engine.wind import effective_quantity
 
 PAR_SIZE = 12
+# per-segment record ``seg`` (SEG_SIZE,): D_k at the start [0:6], d m0/dgamma_k [6:8] (m0 the traced quantity
+# the segment starts from), d g/dgamma_k [8:14] (g its gradient), d m0 - g.X_k [14:16], wind terms on [16]
+SEG_SIZE = 17
+WIND_FD_REL = 1e-5  # relative step of the wind model's directional differences (wind_terms)
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
@@ -126,3 +142,334 @@ def reflect(par, m):
         dot = m[0] * par[o] + m[1] * par[o + 1] + m[2] * par[o + 2]
         for i in range(3):
             par[o + i] -= 2.0 * dot * m[i]
+
+
+# ----- circular and n-linear curves, and the wind: the segment record (docs/physics.md §10, "Other curves") -----
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def refractive_index(curve, m, c_ref):
+    """n = c_ref / c from the traced quantity m of a circular (m = c) or n-linear (m = n) curve."""
+    if curve == CURVE_CIRCULAR:
+        return c_ref / m
+    return m
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def tangent_derivs(par, d, p_norm, seg):
+    """seg[0:6] = D_k = dT/dgamma_k = (P_k - d (d.P_k)) / |p| at a segment start (d the unit tangent)."""
+    for k in range(2):
+        o = 3 * k
+        dp = d[0] * par[6 + o] + d[1] * par[7 + o] + d[2] * par[8 + o]
+        for i in range(3):
+            seg[o + i] = (par[6 + o + i] - d[i] * dp) / p_norm
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def plain_terms(par, g, seg):
+    """The segment record without wind: d m0 = g.X_k (the cell's linear model), d g = 0."""
+    for k in range(2):
+        o = 3 * k
+        seg[6 + k] = g[0] * par[o] + g[1] * par[o + 1] + g[2] * par[o + 2]
+        seg[14 + k] = 0.0
+    for i in range(6):
+        seg[8 + i] = 0.0
+    seg[16] = 0.0
+
+
+@nb.njit(**NJIT_FLAGS)
+def _eff_diff(curve, c_ref, code, params, m_base, g_cell, y, dy, e, de, h, work):
+    """Central difference along (dy, de) of the effective medium (wind.effective_quantity): returns
+    d m and writes d g into work[0:3]. work : (15,) scratch."""
+    gdy = g_cell[0] * dy[0] + g_cell[1] * dy[1] + g_cell[2] * dy[2]
+    yp = work[3:6]
+    ep = work[6:9]
+    gm = work[9:12]
+    wg = work[12:15]
+    for i in range(3):
+        yp[i] = y[i] + h * dy[i]
+        ep[i] = e[i] + h * de[i]
+    mp = effective_quantity(curve, c_ref, m_base + h * gdy, g_cell, code, params, yp, ep, wg, work[0:3])
+    for i in range(3):
+        yp[i] = y[i] - h * dy[i]
+        ep[i] = e[i] - h * de[i]
+    mm = effective_quantity(curve, c_ref, m_base - h * gdy, g_cell, code, params, yp, ep, wg, gm)
+    for i in range(3):
+        work[i] = (work[i] - gm[i]) / (2.0 * h)
+    return (mp - mm) / (2.0 * h)
+
+
+@nb.njit(**NJIT_FLAGS)
+def wind_terms(curve, c_ref, wind, cell_model, x, d, par, seg, work):
+    """The segment record with wind (after tangent_derivs): d m0/dgamma_k and d g/dgamma_k of the effective
+    medium the traversal sets the segment up with (its value at x, its gradient at the chord middle).
+
+    wind : (code, params, e) the ray's wind and unit horizontal launch azimuth e (de/d az = (-e_y, e_x, 0),
+    de/d el = 0); cell_model : (m_cell_x, g_cell, planes, neighbours, cell_size, mid_ok, x_mid) the cell's own
+    traced quantity at x and gradient, its face planes, and the chord middle (mid_ok False: the gradient was
+    taken at x). The chord middle x + (L/2) d moves with X_k, D_k and the chord length L to the first face f
+    ahead: dL = -(m_f.X_k + L m_f.D_k)/(m_f.d). The wind model's own derivatives are central differences
+    along these directions (step WIND_FD_REL of the cell size): about 1e-10 relative.
+    work : (21,) scratch.
+    """
+    code, params, e = wind
+    m_x, g_cell, planes, neighbours, cell_size, mid_ok, x_mid = cell_model
+    best = math.inf
+    bf = -1
+    if mid_ok:
+        for f in range(planes.shape[0]):
+            if neighbours[f] == FACE_UNUSED:
+                continue
+            md = planes[f, 0] * d[0] + planes[f, 1] * d[1] + planes[f, 2] * d[2]
+            if md > 0.0:
+                dist = (planes[f, 3] - planes[f, 0] * x[0] - planes[f, 1] * x[1] - planes[f, 2] * x[2]) / md
+                if dist < best:
+                    best = dist
+                    bf = f
+    m_mid = m_x + g_cell[0] * (x_mid[0] - x[0]) + g_cell[1] * (x_mid[1] - x[1]) + g_cell[2] * (x_mid[2] - x[2])
+    de = work[15:18]
+    dxm = work[18:21]
+    for k in range(2):
+        o = 3 * k
+        xk = par[o : o + 3]
+        if k == 0:
+            de[0] = 0.0
+            de[1] = 0.0
+        else:
+            de[0] = -e[1]
+            de[1] = e[0]
+        de[2] = 0.0
+        xn = math.sqrt(xk[0] * xk[0] + xk[1] * xk[1] + xk[2] * xk[2])
+        h = WIND_FD_REL * cell_size / max(xn, cell_size) if cell_size > 0.0 else WIND_FD_REL
+        dm0 = _eff_diff(curve, c_ref, code, params, m_x, g_cell, x, xk, e, de, h, work)
+        seg[6 + k] = dm0
+        if mid_ok and bf >= 0:
+            md = planes[bf, 0] * d[0] + planes[bf, 1] * d[1] + planes[bf, 2] * d[2]
+            if best > 0.0:
+                mxk = planes[bf, 0] * xk[0] + planes[bf, 1] * xk[1] + planes[bf, 2] * xk[2]
+                mdk = planes[bf, 0] * seg[o] + planes[bf, 1] * seg[o + 1] + planes[bf, 2] * seg[o + 2]
+                dlen = -(mxk + best * mdk) / md
+                half = 0.5 * best
+            else:
+                dlen = 0.0
+                half = 0.0
+            for i in range(3):
+                dxm[i] = xk[i] + 0.5 * dlen * d[i] + half * seg[o + i]
+            xn = math.sqrt(dxm[0] * dxm[0] + dxm[1] * dxm[1] + dxm[2] * dxm[2])
+            h = WIND_FD_REL * cell_size / max(xn, cell_size) if cell_size > 0.0 else WIND_FD_REL
+            _eff_diff(curve, c_ref, code, params, m_mid, g_cell, x_mid, dxm, e, de, h, work)
+        for i in range(3):
+            seg[8 + o + i] = work[i]
+    seg[16] = 1.0
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def finish_terms(par, g, seg):
+    """seg[14:16] = d m0 - g.X_k with g the gradient the segment is set up with (after wind_terms)."""
+    for k in range(2):
+        o = 3 * k
+        seg[14 + k] = seg[6 + k] - (g[0] * par[o] + g[1] * par[o + 1] + g[2] * par[o + 2])
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def restart_dm(par, d, p_norm, n_new, seg):
+    """restart with the segment record's d m0 (d n^2) in place of g.X_k: the parabolic restart with wind."""
+    if not (p_norm > 0.0 and n_new > 0.0):
+        return
+    scale = n_new / p_norm
+    for k in range(2):
+        o = 3 * k
+        dp = d[0] * par[6 + o] + d[1] * par[7 + o] + d[2] * par[8 + o]
+        along = 0.5 * seg[6 + k] / n_new
+        for i in range(3):
+            par[6 + o + i] = along * d[i] + scale * (par[6 + o + i] - d[i] * dp)
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def advance_dg(par, seg, sigma):
+    """The parabolic segment's d g/dgamma_k terms (wind): X_k += dg_k sigma^2/4, P_k += dg_k sigma/2."""
+    q = 0.25 * sigma * sigma
+    for k in range(2):
+        o = 3 * k
+        for i in range(3):
+            par[o + i] += seg[8 + o + i] * q
+            par[6 + o + i] += seg[8 + o + i] * 0.5 * sigma
+
+
+@nb.njit(**NJIT_FLAGS)
+def _along_circular(cs, d0, g, seg, par, u, rates):
+    """along_curve for the circular arc x(u) = x0 + (2u d0 + 2u^2 k)/q, q = 1 + kappa^2 u^2 (§3)."""
+    c0 = cs[6]
+    ka2 = cs[3]
+    uu = u * u
+    inv = 1.0 / (1.0 + ka2 * uu)
+    dq_du = 2.0 * ka2 * u
+    gt = g[0] * d0[0] + g[1] * d0[1] + g[2] * d0[2]
+    tn = 0.0
+    for i in range(3):
+        rates[3 + i] = ((1.0 - ka2 * uu) * d0[i] + 2.0 * u * cs[i]) * inv  # T(u) for now
+        tn += rates[3 + i] * rates[3 + i]
+    tn = math.sqrt(tn)
+    t0 = rates[3] / tn
+    t1 = rates[4] / tn
+    t2 = rates[5] / tn
+    for i in range(3):
+        nx = 2.0 * u * d0[i] + 2.0 * uu * cs[i]
+        nt = (1.0 - ka2 * uu) * d0[i] + 2.0 * u * cs[i]
+        rates[i] = (2.0 * d0[i] + 4.0 * u * cs[i]) * inv - nx * dq_du * inv * inv
+        rates[3 + i] = (-2.0 * ka2 * u * d0[i] + 2.0 * cs[i]) * inv - nt * dq_du * inv * inv
+    tt = (t0 * rates[3] + t1 * rates[4] + t2 * rates[5]) / tn
+    rates[3] = rates[3] / tn - tt * t0
+    rates[4] = rates[4] / tn - tt * t1
+    rates[5] = rates[5] / tn - tt * t2
+    for k in range(2):
+        o = 3 * k
+        x0v = (par[o], par[o + 1], par[o + 2])
+        dc0 = seg[6 + k]
+        dgv = (seg[8 + o], seg[9 + o], seg[10 + o])
+        dgt = g[0] * seg[o] + g[1] * seg[o + 1] + g[2] * seg[o + 2] + dgv[0] * d0[0] + dgv[1] * d0[1] + dgv[2] * d0[2]
+        # k = -(G - (G.d0) d0)/c0: dk = ((dG.d0 + G.D0) d0 + (G.d0) D0 - dG - k dc0)/c0
+        dk = (
+            (dgt * d0[0] + gt * seg[o] - dgv[0] - cs[0] * dc0) / c0,
+            (dgt * d0[1] + gt * seg[o + 1] - dgv[1] - cs[1] * dc0) / c0,
+            (dgt * d0[2] + gt * seg[o + 2] - dgv[2] - cs[2] * dc0) / c0,
+        )
+        dka2 = 2.0 * (cs[0] * dk[0] + cs[1] * dk[1] + cs[2] * dk[2])
+        dq = uu * dka2
+        for i in range(3):
+            nx = 2.0 * u * d0[i] + 2.0 * uu * cs[i]
+            nt = (1.0 - ka2 * uu) * d0[i] + 2.0 * u * cs[i]
+            par[o + i] = x0v[i] + (2.0 * u * seg[o + i] + 2.0 * uu * dk[i]) * inv - nx * dq * inv * inv
+            par[6 + o + i] = (
+                (1.0 - ka2 * uu) * seg[o + i] - uu * dka2 * d0[i] + 2.0 * u * dk[i]
+            ) * inv - nt * dq * inv * inv
+        dn = (t0 * par[6 + o] + t1 * par[7 + o] + t2 * par[8 + o]) / tn
+        par[6 + o] = par[6 + o] / tn - dn * t0
+        par[7 + o] = par[7 + o] / tn - dn * t1
+        par[8 + o] = par[8 + o] / tn - dn * t2
+    return math.sqrt(rates[0] * rates[0] + rates[1] * rates[1] + rates[2] * rates[2])
+
+
+@nb.njit(**NJIT_FLAGS)
+def _along_nlinear(cs, d0, seg, par, r, rates):
+    """along_curve for the n-linear catenary x(r) = x0 + r e_r + z(r) e_z (§4), or its straight mode."""
+    if cs[9] != 0.0:  # straight: x = x0 + s d0, T = d0
+        for k in range(2):
+            o = 3 * k
+            for i in range(3):
+                par[o + i] += r * seg[o + i]
+                par[6 + o + i] = seg[o + i]
+        for i in range(3):
+            rates[i] = d0[i]
+            rates[3 + i] = 0.0
+        return 1.0
+    alpha = cs[6]
+    xi = cs[7]
+    u0 = cs[8]
+    n0 = cs[10]
+    z = _nl_height(alpha, xi, u0, r)
+    s = _nl_arc(alpha, xi, u0, r)
+    big_u = alpha * r / xi + u0
+    sh = math.sinh(big_u)
+    ch = math.cosh(big_u)
+    ch0 = math.cosh(u0)
+    sin0 = cs[3] * d0[0] + cs[4] * d0[1] + cs[5] * d0[2]
+    rx = d0[0] - sin0 * cs[3]
+    ry = d0[1] - sin0 * cs[4]
+    rz = d0[2] - sin0 * cs[5]
+    cos0 = math.sqrt(rx * rx + ry * ry + rz * rz)
+    du_dr = alpha / xi
+    for i in range(3):
+        ti = (cs[i] + sh * cs[3 + i]) / ch
+        rates[i] = cs[i] + sh * cs[3 + i]
+        rates[3 + i] = du_dr * (cs[3 + i] * ch - ti * sh) / ch
+    for k in range(2):
+        o = 3 * k
+        dn0 = seg[6 + k]
+        # the axis e_z = g/alpha moves with d g (wind): d alpha = e_z.dg, d e_z = (dg - e_z d alpha)/alpha
+        dal = cs[3] * seg[8 + o] + cs[4] * seg[9 + o] + cs[5] * seg[10 + o]
+        dez = (
+            (seg[8 + o] - cs[3] * dal) / alpha,
+            (seg[9 + o] - cs[4] * dal) / alpha,
+            (seg[10 + o] - cs[5] * dal) / alpha,
+        )
+        dsin0 = (
+            cs[3] * seg[o] + cs[4] * seg[o + 1] + cs[5] * seg[o + 2] + dez[0] * d0[0] + dez[1] * d0[1] + dez[2] * d0[2]
+        )
+        drx = seg[o] - dsin0 * cs[3] - sin0 * dez[0]
+        dry = seg[o + 1] - dsin0 * cs[4] - sin0 * dez[1]
+        drz = seg[o + 2] - dsin0 * cs[5] - sin0 * dez[2]
+        dcos0 = cs[0] * drx + cs[1] * dry + cs[2] * drz
+        der = ((drx - cs[0] * dcos0) / cos0, (dry - cs[1] * dcos0) / cos0, (drz - cs[2] * dcos0) / cos0)
+        dxi = dn0 * cos0 + n0 * dcos0
+        du0 = (dsin0 * cos0 - sin0 * dcos0) / (cos0 * cos0) / ch0
+        # z depends on alpha and xi through beta = alpha/xi: beta dz/dbeta = r sinh U - z
+        dz = s * du0 + (r * sh - z) * (dal / alpha - dxi / xi)
+        dbu = du0 + r * (dal - du_dr * dxi) / xi
+        for i in range(3):
+            ti = (cs[i] + sh * cs[3 + i]) / ch
+            par[o + i] += r * der[i] + dz * cs[3 + i] + z * dez[i]
+            par[6 + o + i] = (der[i] + sh * dez[i] + dbu * (cs[3 + i] * ch - ti * sh)) / ch
+    return math.sqrt(rates[0] * rates[0] + rates[1] * rates[1] + rates[2] * rates[2])
+
+
+@nb.njit(**NJIT_FLAGS)
+def along_curve(curve, cs, x0, d0, g, seg, par, param, rates):
+    """X_k, D_k at the curve parameter ``param`` of a circular or n-linear segment, in place.
+
+    cs : the segment's curve constants (curves.setup from x0, d0, the cell's m0 and gradient g); seg : the
+    segment record (D_k at the start, d m0, d g: tangent_derivs and plain_terms or wind_terms);
+    par : (12,) X_k(0) in par[0:6] on entry; on return par[0:6] = X_k(param), par[6:12] = D_k(param) (the
+    D form: call to_p before anything else reads par). rates : (6,) written, d x/d param and d T/d param
+    at param. Returns |d x/d param|. The derivative of the closed-form curve (§3, §4) through its setup
+    constants: exact to rounding (docs/physics.md §10).
+    """
+    if curve == CURVE_CIRCULAR:
+        return _along_circular(cs, d0, g, seg, par, param, rates)
+    return _along_nlinear(cs, d0, seg, par, param, rates)
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def onto_face_rates(par, plane, rates, max_dparam):
+    """onto_face for the D form: the neighbouring ray meets the face d param_k = -(m.X_k)/(m.x') later,
+    X_k += x' d param_k, D_k += T' d param_k (rates = x', T'); max_dparam as onto_face's bound."""
+    mr = plane[0] * rates[0] + plane[1] * rates[1] + plane[2] * rates[2]
+    if mr == 0.0:
+        return
+    for k in range(2):
+        o = 3 * k
+        mx = plane[0] * par[o] + plane[1] * par[o + 1] + plane[2] * par[o + 2]
+        dpar = -mx / mr
+        if dpar > max_dparam:
+            dpar = max_dparam
+        elif dpar < -max_dparam:
+            dpar = -max_dparam
+        for i in range(3):
+            par[o + i] += rates[i] * dpar
+            par[6 + o + i] += rates[3 + i] * dpar
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def to_p(curve, c_ref, cs, g, x0, xe, te, par, seg):
+    """D form -> P form in place at the point xe (tangent te) of the segment from x0: P_k = dn_k te + n D_k
+    with n = n(m), m = m0 + g.(xe - x0) the segment's own linear model and d m_k = (d m0 - g.X_k(0)) +
+    dg_k.(xe - x0) + g.X_k (the first two terms vanish without wind); returns n."""
+    m0 = cs[6] if curve == CURVE_CIRCULAR else cs[10]
+    m = m0 + g[0] * (xe[0] - x0[0]) + g[1] * (xe[1] - x0[1]) + g[2] * (xe[2] - x0[2])
+    if curve == CURVE_CIRCULAR:
+        n = c_ref / m
+        f = -n / m
+    else:
+        n = m
+        f = 1.0
+    for k in range(2):
+        o = 3 * k
+        dm = g[0] * par[o] + g[1] * par[o + 1] + g[2] * par[o + 2]
+        if seg[16] != 0.0:
+            dm += seg[14 + k]
+            for i in range(3):
+                dm += seg[8 + o + i] * (xe[i] - x0[i])
+        gx = f * dm
+        for i in range(3):
+            par[6 + o + i] = gx * te[i] + n * par[6 + o + i]
+    return n

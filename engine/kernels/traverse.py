@@ -51,6 +51,7 @@ from bentray.engine.constants import (
     COUNT_SAMPLES,
     COUNT_STATUS,
     COUNT_STEPS,
+    CURVE_PARABOLIC,
     FACE_UNUSED,
     GRAZE_COS,
     MAX_NUDGES_IN_A_ROW,
@@ -303,11 +304,12 @@ def _beam_segment(beam, slot, bray, prm, cs, x, d, seg, par, scratch, refl):
     """Beam samples inside a segment longer than the chord length (on the curve, uniform in sigma).
 
     prm : RayParams (curve, c_ref); seg : (param, t, s, ds) the segment's end parameter, start time (s),
-    start arc (m) and length (m); scratch : (par_tmp, p_tmp, xs, ts) work arrays; refl : the ray's
-    reflections tuple of beams.ray_sample.
+    start arc (m) and length (m); scratch : (par_tmp, p_tmp, xs, ts, seg, rates, g) work arrays (seg: the
+    segment record of kernels/paraxial.py, g: the segment's gradient); refl : the ray's reflections tuple
+    of beams.ray_sample.
     """
     param, t, s, ds = seg
-    par_tmp, p_tmp, xs, ts = scratch
+    par_tmp, p_tmp, xs, ts, seg, rates, g = scratch
     chord = beam.tabs.chord_m
     if ds <= chord:
         return
@@ -316,8 +318,16 @@ def _beam_segment(beam, slot, bray, prm, cs, x, d, seg, par, scratch, refl):
         sig = param * j / (n_int + 1)
         dsj = curves.evaluate(prm.curve, cs, x, d, sig, xs, ts)
         tj = t + curves.time_at(prm.curve, cs, sig, prm.c_ref)
-        paraxial.advanced_copy(par, sig, par_tmp)
-        nj = _p_at(cs, sig, p_tmp)
+        if prm.curve == CURVE_PARABOLIC:
+            paraxial.advanced_copy(par, sig, par_tmp)
+            if seg[16] != 0.0:
+                paraxial.advance_dg(par_tmp, seg, sig)
+            nj = _p_at(cs, sig, p_tmp)
+        else:
+            for q in range(paraxial.PAR_SIZE):
+                par_tmp[q] = par[q]
+            paraxial.along_curve(prm.curve, cs, x, d, g, seg, par_tmp, sig, rates)
+            nj = paraxial.to_p(prm.curve, prm.c_ref, cs, g, x, xs, ts, par_tmp, seg)
         beams.ray_sample(beam, slot, bray, xs, ts, tj, s + dsj, nj / prm.c_ref, par_tmp, refl, False)
 
 
@@ -394,13 +404,19 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
     t = 0.0
     s = 0.0
     cell = cell_start
-    # paraxial state and beam samples (docs/physics.md §10-11; parabolic curve)
+    # paraxial state and beam samples (docs/physics.md §10-11); seg: the segment record (circular, n-linear, wind)
+    parabolic = curve == CURVE_PARABOLIC
     want_par = rays.out_par.shape[0] > 0
     deposit_on = beam.grid.mode != beams.BEAM_OFF or beam.pts.xyz.shape[0] > 0
     par_on = (deposit_on or want_par) and cell_start >= 0
     par = np.zeros(paraxial.PAR_SIZE)
     par_tmp = np.zeros(paraxial.PAR_SIZE)
     p_end = np.zeros(3)
+    seg = np.zeros(paraxial.SEG_SIZE)
+    rates = np.zeros(6)
+    pwork = np.zeros(21)
+    mid_ok = False
+    m_raw = 0.0
     bray = beams.new_ray(beam.grid.omega.shape[0])
     if deposit_on and rays.f_weights.shape[1] == bray.amp0.shape[0]:  # beams: f_weights = directivity factors
         for f in range(bray.amp0.shape[0]):
@@ -413,7 +429,7 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
             m_start = effective_quantity(curve, c_ref, m_start, gradient[cell], ray_wind, wind_params, x, e_wind,
                                          w_grad, g_eff)  # fmt: skip
         if m_start > 0.0:
-            p_norm = math.sqrt(m_start)
+            p_norm = math.sqrt(m_start) if parabolic else paraxial.refractive_index(curve, m_start, c_ref)
             paraxial.launch(par, d, p_norm)
             if deposit_on:
                 beams.ray_sample(
@@ -456,8 +472,10 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
             # thinner layers, and 10x with the chord middle). The curve, its exit, time_at (which then
             # integrates 1/c_eff: the travel time in the moving medium), the nudge slowness and the field
             # deposit all use them. Without wind nothing here changes.
+            m_raw = m0
             m0 = effective_quantity(curve, c_ref, m0, g, wind_code, wind_params, x, e_wind, w_grad, g_eff)
-            if _chord_middle(planes[cell], neighbours[cell], x, d, x_mid):
+            mid_ok = _chord_middle(planes[cell], neighbours[cell], x, d, x_mid)
+            if mid_ok:
                 effective_quantity(
                     curve,
                     c_ref,
@@ -492,10 +510,31 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
         if not curves.setup(curve, m0, g, d, cs):
             status = STATUS_LOST
             break
-        if par_on:  # the segment restarts from this cell's model at x: p' = n'(x) d (docs/physics.md §10)
+        if par_on and wind_on:  # the effective medium's derivatives (docs/physics.md §10, wind)
+            paraxial.tangent_derivs(par, d, p_norm, seg)
+            paraxial.wind_terms(
+                curve,
+                c_ref,
+                (ray_wind, wind_params, e_wind),
+                (m_raw, gradient[cell], planes[cell], neighbours[cell], size[cell], mid_ok, x_mid),
+                x,
+                d,
+                par,
+                seg,
+                pwork,
+            )
+            paraxial.finish_terms(par, g, seg)
+        if par_on and parabolic:  # the segment restarts from this cell's model at x: p' = n'(x) d (§10)
             n_new = math.sqrt(m0)
-            paraxial.restart(par, d, p_norm, n_new, g)
+            if wind_on:
+                paraxial.restart_dm(par, d, p_norm, n_new, seg)
+            else:
+                paraxial.restart(par, d, p_norm, n_new, g)
             p_norm = n_new
+        elif par_on:  # circular / n-linear: the segment starts from (x, d); its D_k (docs/physics.md §10)
+            if not wind_on:
+                paraxial.tangent_derivs(par, d, p_norm, seg)
+                paraxial.plain_terms(par, g, seg)
         cell_size = size[cell]
         face, param = curves.find_exit(
             curve, cs, x, d, planes[cell], neighbours[cell], exclude, ON_FACE_REL * cell_size, cell_size
@@ -542,11 +581,17 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
                         d,
                         (param_end, t, s, ds),
                         par,
-                        (par_tmp, p_end, xs, ts),
+                        (par_tmp, p_end, xs, ts, seg, rates, g),
                         (reflections, refl_cos, refl_mat, launch_cos),
                     )
-                paraxial.advance(par, param_end)
-                p_norm = _p_at(cs, param_end, p_end)
+                if parabolic:
+                    paraxial.advance(par, param_end)
+                    if wind_on:
+                        paraxial.advance_dg(par, seg, param_end)
+                    p_norm = _p_at(cs, param_end, p_end)
+                else:
+                    paraxial.along_curve(curve, cs, x, d, g, seg, par, param_end, rates)
+                    p_norm = paraxial.to_p(curve, c_ref, cs, g, x, xn, dn, par, seg)
                 if deposit_on:
                     beams.ray_sample(
                         beam,
@@ -604,17 +649,29 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
                     d,
                     (param, t, s, ds),
                     par,
-                    (par_tmp, p_end, xs, ts),
+                    (par_tmp, p_end, xs, ts, seg, rates, g),
                     (reflections, refl_cos, refl_mat, launch_cos),
                 )
-            paraxial.advance(par, param)
-            p_norm = _p_at(cs, param, p_end)
+            if parabolic:
+                paraxial.advance(par, param)
+                if wind_on:
+                    paraxial.advance_dg(par, seg, param)
+                p_norm = _p_at(cs, param, p_end)
+                x_rate = p_norm
+            else:
+                x_rate = paraxial.along_curve(curve, cs, x, d, g, seg, par, param, rates)
             if face >= 0:
                 # exact derivatives, unless the state feeds beams and the face is slanted: then the kick of a
                 # near-tangential crossing is bounded (constants.BEAM_KICK_BOUND_NZ; docs/physics.md §11)
                 slanted = abs(planes[cell, face, 2]) < BEAM_KICK_BOUND_NZ
-                bound = cell_size / p_norm if deposit_on and slanted else math.inf
-                paraxial.onto_face(par, planes[cell, face], p_end, g, bound)
+                bound = cell_size / x_rate if deposit_on and slanted else math.inf
+                if parabolic:
+                    paraxial.onto_face(par, planes[cell, face], p_end, g, bound)
+                else:
+                    paraxial.onto_face_rates(par, planes[cell, face], rates, bound)
+            if not parabolic:
+                p_norm = paraxial.to_p(curve, c_ref, cs, g, x, xn, dn, par, seg)
+            if face >= 0:
                 if deposit_on and (neighbours[cell, face] < 0 or s + ds - bray.last[beams.S_ARC] >= beam.tabs.chord_m):
                     beams.ray_sample(
                         beam,

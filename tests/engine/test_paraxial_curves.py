@@ -1,0 +1,184 @@
+"""Paraxial rays of the circular and n-linear curves (docs/physics.md §10, "Other curves") against their oracle.
+
+The same oracle as tests/engine/test_paraxial.py: the final paraxial state (X_k = dx/dgamma_k, P_k =
+dp/dgamma_k, p = n T) must be the exact derivative of what the tracer computes, so each ray is traced
+again 1e-6 and 5e-7 rad away in elevation and azimuth, on both sides, and its final states on the exit
+face are Richardson-differentiated (truncation O(h^4)). Rays whose neighbours pass an edge on the other
+side (another crossing or reflection count) are left out; the test asserts that most rays are compared.
+Errors are relative to |X_k| (or, near a caustic, 10 % of the ray's length) and to |P_k|.
+
+Measured (commit of this file, `pytest -q tests/engine/test_paraxial_curves.py -s`): printed per case.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import bentray  # noqa: F401
+from bentray.engine.constants import STATUS_EXITED
+from bentray.engine.media import build_media, build_terrain_media
+from bentray.engine.stages import load_surfaces
+from bentray.engine.tracer import trace
+from bentray.engine.wind import check_wind
+from bentray.scenes.profile_models import profile_from_spec
+from bentray.scenes.schema import Job
+from bentray.scenes.wind_models import wind_from_spec
+
+H = 1e-6  # rad, launch-angle step of the central differences
+TOL = 1e-6  # relative agreement asked by issue 12
+
+LOG_DOWN = {"kind": "log", "c0": 340.0, "b": 1.0, "z_g": 1.0}
+LINEAR_DOWN = {"kind": "linear_c", "c0": 340.0, "alpha": -0.1}
+LOG_WIND = {"kind": "log", "u_star": 0.5, "z_g": 0.1, "direction_deg": 20.0}
+FAN_EL = np.array([-4.0, -2.0, -1.0, 0.5, 2.0, 4.0, 8.0])
+FAN_AZ = np.array([0.0, 7.0, -11.0, 20.0, 3.0, -30.0, 15.0])
+
+
+def _job(profile: dict, curve: str, representation: str, *, terrain: str | None = None, wind: dict | None = None):
+    scene: dict = {"domain": {"min": [-20, -200, 0], "max": [600, 200, 150]}, "ground": {"kind": "flat"}}
+    if terrain is not None:
+        scene = {"builtin": terrain}
+    spec = {
+        "name": "paraxial-curves",
+        "scene": scene,
+        "profile": profile,
+        "sources": [{"position": [0.0, 0.0, 2.0]}],
+        "rays": {"elevation_deg": {"min": -5, "max": 5, "count": 3}, "max_time_s": 30.0, "max_reflections": 20},
+        "solver": {"curve": curve, "representation": representation},
+        "outputs": ["report"],
+    }
+    if wind is not None:
+        spec["wind"] = wind
+    return Job.model_validate(spec)
+
+
+def _media(job: Job):
+    profile = profile_from_spec(job.profile)
+    lo = np.asarray(job.scene.box.min, float)
+    hi = np.asarray(job.scene.box.max, float)
+    wind = wind_from_spec(job.wind) if job.wind is not None else None
+    surfaces = load_surfaces(job)
+    curve = job.solver.curve
+    if surfaces is not None:
+        media = build_terrain_media(profile, curve, job.solver, lo, hi, surfaces, top=job.scene.top.kind)
+    else:
+        media = build_media(profile, curve, job.solver, lo, hi, ground="reflect", top=job.scene.top.kind, wind=wind)
+    return media, profile, wind
+
+
+def _directions(el: np.ndarray, az: np.ndarray) -> np.ndarray:
+    return np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+
+
+def compare(job: Job, src: np.ndarray, el_deg: np.ndarray, az_deg: np.ndarray) -> dict:
+    """Worst relative difference between the carried derivatives and Richardson-extrapolated central
+    differences of launches (steps H and H/2), over the rays whose neighbours took the same path."""
+    media, profile, wind = _media(job)
+    el0 = np.radians(el_deg)
+    az0 = np.radians(az_deg)
+    n = el0.size
+    steps = [H, -H, H / 2, -H / 2]
+    els = np.concatenate([el0] + [el0 + h for h in steps] + [el0] * 4)
+    azs = np.concatenate([az0] + [az0] * 4 + [az0 + h for h in steps])
+    dirs = _directions(els, azs)
+    origins = np.repeat(src[None], dirs.shape[0], axis=0)
+    cells = media.locate(src[None])
+    assert cells[0] >= 0
+    res = trace(
+        media.mesh,
+        job.solver.curve,
+        profile.c_ref,
+        origins,
+        dirs,
+        np.full(dirs.shape[0], cells[0]),
+        max_time_s=job.rays.max_time_s,
+        max_reflections=job.rays.max_reflections,
+        paraxial=True,
+        wind=check_wind(wind) if wind is not None else None,
+    )
+    par = res.paraxial
+    assert par is not None
+    p_vec = res.direction * par[:, 12:13]
+    blocks = [slice(k * n, (k + 1) * n) for k in range(9)]
+    same = res.status[blocks[0]] == STATUS_EXITED
+    for b in blocks[1:]:
+        same &= (res.crossings[b] == res.crossings[blocks[0]]) & (res.reflections[b] == res.reflections[blocks[0]])
+        same &= res.status[b] == STATUS_EXITED
+
+    def richardson(values: np.ndarray, first: int) -> np.ndarray:
+        d_h = (values[blocks[first]] - values[blocks[first + 1]]) / (2 * H)
+        d_h2 = (values[blocks[first + 2]] - values[blocks[first + 3]]) / H
+        return (4.0 * d_h2 - d_h) / 3.0
+
+    worst_x = 0.0
+    worst_p = 0.0
+    for k, first in enumerate((1, 5)):
+        fd_x = richardson(res.position, first)
+        fd_p = richardson(p_vec, first)
+        x_k = par[blocks[0], 3 * k : 3 * k + 3]
+        p_k = par[blocks[0], 6 + 3 * k : 9 + 3 * k]
+        scale_x = np.maximum(np.linalg.norm(x_k, axis=1), 0.1 * res.length_m[blocks[0]])
+        err_x = np.linalg.norm(fd_x - x_k, axis=1) / scale_x
+        err_p = np.linalg.norm(fd_p - p_k, axis=1) / np.maximum(np.linalg.norm(p_k, axis=1), 1e-2)
+        worst_x = max(worst_x, float(np.max(err_x[same], initial=0.0)))
+        worst_p = max(worst_p, float(np.max(err_p[same], initial=0.0)))
+    return {
+        "compared": int(same.sum()),
+        "rays": n,
+        "worst_rel": max(worst_x, worst_p),
+        "worst_x": worst_x,
+        "worst_p": worst_p,
+        "reflections": int(res.reflections[blocks[0]][same].sum()),
+        "crossings": int(res.crossings[blocks[0]][same].sum()),
+    }
+
+
+@pytest.mark.parametrize("curve", ["circular", "n_linear"])
+@pytest.mark.parametrize("representation", ["slabs", "tets"])
+def test_paraxial_curves_match_central_differences_downward_log(curve, representation):
+    """A-LD log profile (downward refraction, several ground reflections per ray) on slabs (a gradient jump
+    at every layer face) and Delaunay tets (jumps at every face), traced with circular arcs / catenaries."""
+    out = compare(_job(LOG_DOWN, curve, representation), np.array([0.0, 0.0, 2.0]), FAN_EL, FAN_AZ)
+    print(curve, representation, out)
+    assert out["compared"] >= 5, out
+    assert out["reflections"] >= 5, out
+    assert out["crossings"] >= 100, out
+    assert out["worst_rel"] < TOL, out
+
+
+@pytest.mark.parametrize("curve", ["circular", "n_linear"])
+def test_paraxial_curves_match_central_differences_linear_c(curve):
+    """Linear c (c = 340 - 0.1 z: downward refraction) on slabs: one circle per cell for the circular curve."""
+    out = compare(_job(LINEAR_DOWN, curve, "slabs"), np.array([0.0, 0.0, 2.0]), FAN_EL, FAN_AZ)
+    print(curve, "linear_c", out)
+    assert out["compared"] >= 5, out
+    assert out["reflections"] >= 3, out
+    assert out["worst_rel"] < TOL, out
+
+
+@pytest.mark.parametrize("curve", ["circular", "n_linear"])
+def test_paraxial_curves_match_central_differences_over_terrain(curve):
+    """The built-in ridge scene (terrain tets, reflections off sloping faces)."""
+    job = _job(LOG_DOWN, curve, "auto", terrain="ridge")
+    lo = np.asarray(job.scene.box.min, float)
+    hi = np.asarray(job.scene.box.max, float)
+    src = np.array([lo[0] + 0.2 * (hi[0] - lo[0]), 0.5 * (lo[1] + hi[1]), 0.0])
+    from bentray.engine.mesh.terrain import terrain_height_function
+
+    surfaces = load_surfaces(job)
+    src[2] = float(terrain_height_function(surfaces.terrain, lo, hi)(src[None, :2])[0]) + 3.0
+    out = compare(job, src, FAN_EL, FAN_AZ + 0.37)
+    print(curve, "ridge", out)
+    assert out["compared"] >= 4, out
+    assert out["worst_rel"] < TOL, out
+
+
+@pytest.mark.parametrize("curve", ["parabolic", "circular", "n_linear"])
+def test_paraxial_curves_match_central_differences_with_wind(curve):
+    """A log-law wind blowing at 20 deg to the fan's mean azimuth (the effective medium depends on each ray's
+    launch azimuth), A-LD profile, slabs."""
+    out = compare(_job(LOG_DOWN, curve, "slabs", wind=LOG_WIND), np.array([0.0, 0.0, 2.0]), FAN_EL, FAN_AZ)
+    print(curve, "wind", out)
+    assert out["compared"] >= 5, out
+    assert out["worst_rel"] < TOL, out
