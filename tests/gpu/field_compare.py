@@ -77,13 +77,13 @@ def _terrain_job() -> dict[str, Any]:
         "sources": [{"position": [-300.0, -20.0, 12.0], "power_db": {"500": 100.0}}],
         "rays": {
             "elevation_deg": {"min": -10.0, "max": 10.0, "count": 21},
-            "azimuth_deg": {"min": -4.0, "max": 4.0, "count": 3},
+            "azimuth_deg": {"min": -12.0, "max": 12.0, "count": 5},
             "max_time_s": 0.7,
             "max_reflections": 2,
         },
         "field": {
-            "origin": [-280.0, -40.0, 4.0],
-            "spacing": [20.0, 20.0, 1.0],
+            "origin": [-240.0, -30.0, 4.0],
+            "spacing": [20.0, 5.0, 1.0],
             "shape": [10, 5, 1],
             "frequencies_hz": [500.0],
             "mode": "incoherent",
