@@ -190,5 +190,15 @@ def compare(name: str) -> dict:
     return out
 
 
+def compare_bench_field() -> dict:
+    """The bench's field case (engine/bench/gpu.py ``_field_rows``) on 60 rays for 0.5 s: CPU and CUDA rows."""
+    from bentray.engine.bench import gpu
+    from bentray.engine.gpu.device import cuda_status
+
+    gpu._KW["max_time_s"] = 0.5  # (this process only) a short trace: the simulator runs each thread in Python
+    rows = gpu._field_rows(gpu._field_case(60), 1, 0.0, cuda_status()[1])
+    return {"case": "bench_field", "rows": rows}
+
+
 if __name__ == "__main__":
-    print(json.dumps(compare(sys.argv[1])))
+    print(json.dumps(compare_bench_field() if sys.argv[1] == "bench_field" else compare(sys.argv[1])))

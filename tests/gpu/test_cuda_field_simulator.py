@@ -73,3 +73,12 @@ def test_cuda_beam_field_semicoherent_with_directivity():
 @pytest.mark.slow
 def test_cuda_beam_field_over_terrain_with_wind():
     _check(_run("terrain"))
+
+
+@pytest.mark.slow
+def test_bench_field_case_runs_and_agrees_under_the_simulator():
+    out = _run("bench_field")
+    cpu, gpu = out["rows"]
+    assert cpu["device"].startswith("cpu") and "simulator" in gpu["device"]
+    assert cpu["rays"] == gpu["rays"] > 0 and cpu["rays_per_s"] > 0 and gpu["rays_per_s"] > 0
+    assert gpu["hits_equal"] and gpu["energy_max_rel"] <= LEVEL_REL, gpu
