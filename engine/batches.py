@@ -68,8 +68,13 @@ def trace_batch(plan: TracePlan, start: int, stop: int) -> BatchResult:
             top=spec.top,
         )
     elif _on_cuda(plan):
-        from bentray.engine.gpu.tracer import trace_cuda  # numba-cuda: final ray states only
+        from bentray.engine.gpu.tracer import trace_cuda  # numba-cuda: final ray states and beam fields
 
+        if plan.field is not None:  # a beam field (_on_cuda refuses voxel fields): one device accumulator
+            assert plan.field_weights is not None and isinstance(plan.field, BeamBuffers)
+            buffers = plan.field.like(plan.field_weights[sl], n_slots=1)
+            if plan.ray_amplitudes is not None:
+                buffers.ray_amp = plan.ray_amplitudes[sl]
         result, _ = trace_cuda(
             plan.mesh,
             plan.curve,
@@ -81,8 +86,12 @@ def trace_batch(plan: TracePlan, start: int, stop: int) -> BatchResult:
             max_reflections=plan.max_reflections,
             max_steps=plan.max_steps,
             wind=plan.wind,
+            beams=buffers,
         )
-        result.reflection_cos = result.reflection_material = None  # as the CPU path without a field
+        if buffers is None:
+            result.reflection_cos = result.reflection_material = None  # as the CPU path without a field
+        else:
+            buffers.collapse(ray_offset=start)
     else:
         if plan.field is not None:
             assert plan.field_weights is not None
@@ -110,18 +119,20 @@ def trace_batch(plan: TracePlan, start: int, stop: int) -> BatchResult:
 
 def _on_cuda(plan: TracePlan) -> bool:
     """True when the plan's analytic rays go to the CUDA kernel (solver.device cuda, or auto on a device for a
-    large job). The device computes final ray states only: a job with a field, receivers or recorded paths
-    stays on the CPU under auto and is an error naming solver.device under cuda."""
+    large job). The device computes final ray states and beam fields (field grids and receivers: BeamBuffers);
+    a job with a voxel field or recorded paths stays on the CPU under auto and is an error naming solver.device
+    under cuda."""
     if plan.device == "cpu":
         return False
     from bentray.engine.errors import JobInputError
     from bentray.engine.gpu.device import resolve_device
 
-    needs_cpu = plan.field is not None or plan.path_samples > 0
+    voxel = plan.field is not None and not isinstance(plan.field, BeamBuffers)
+    needs_cpu = voxel or plan.path_samples > 0
     if needs_cpu and plan.device == "cuda":
         raise JobInputError(
-            "solver.device: 'cuda' traces final ray states only; this job accumulates a field or receivers or "
-            "records ray paths (use 'cpu' or 'auto', or drop the 'field' / 'paths' outputs)"
+            "solver.device: 'cuda' traces final ray states and beam fields only; this job accumulates a voxel "
+            "field or records ray paths (use 'cpu' or 'auto', or drop the 'paths' output)"
         )
     return not needs_cpu and resolve_device(plan.device, plan.n_rays)[0] == "cuda"
 

@@ -66,7 +66,7 @@ class TracePlan:
     baseline: BaselineSpec | None = None
     source: np.ndarray | None = None
     ray_amplitudes: np.ndarray | None = None  # (n, F) source directivity per ray (beams; None: omni)
-    device: str = "cpu"  # solver.device: "cpu" | "cuda" | "auto" (engine/gpu/device.py; final ray states only)
+    device: str = "cpu"  # solver.device: "cpu" | "cuda" | "auto" (engine/gpu/device.py; states and beam fields)
 
     @property
     def n_rays(self) -> int:

@@ -8,6 +8,13 @@ kernel compile are reported apart from the warm launches (rays copied in, kernel
 rays / kernel time and crossings / kernel time; ``end_to_end`` adds the per-call ray transfers. The CUDA
 states are compared with the CPU ones (statuses equal, largest end-point difference relative to the path).
 
+The field case (table ``gpu_field``): the A-LD slab mesh with a beam field (incoherent, octave bands 63 Hz -
+8 kHz, a 120 x 5 x 7 grid up to 3 km, the mesh's rigid ground) from a regular launch grid (elevation x
+azimuth), traced with
+beams on the CPU (all numba threads, per-thread slots) and on the GPU (atomics into one accumulator,
+engine/gpu/beam_device.py): rays per second and beam deposits (point contributions) per second, the largest
+relative difference of the collapsed energies and whether the hit counts agree.
+
 Without a CUDA device (numba-cuda missing, no driver, or only the simulator) the section says so and is
 skipped; nothing is built and the command exits with status 0.
 """
@@ -23,7 +30,7 @@ import numpy as np
 from bentray.engine.bench.common import Section, Table, best_time
 from bentray.engine.gpu import device as gpu_device
 
-__all__ = ["COLUMNS", "run"]
+__all__ = ["COLUMNS", "FIELD_COLUMNS", "run"]
 
 COLUMNS = [
     "scene",
@@ -46,6 +53,137 @@ COLUMNS = [
     "note",
 ]
 _KW: dict[str, Any] = {"max_time_s": 10.0, "max_reflections": 3}
+FIELD_COLUMNS = [
+    "scene",
+    "rays",
+    "points",
+    "bands",
+    "device",
+    "compile_s",
+    "rays_transfer_s",
+    "kernel_s",
+    "copy_back_s",
+    "trace_time_s",
+    "rays_per_s",
+    "deposits_per_s",
+    "speedup",
+    "hits_equal",
+    "energy_max_rel",
+    "note",
+]
+
+
+def _field_case(count: int) -> dict[str, Any]:
+    """The A-LD slabs with a beam-field template and a launch grid of about ``count`` rays (see the docstring)."""
+    from bentray.engine import beam_field
+    from bentray.engine.bench.baselines_probe import CASES
+    from bentray.engine.media import build_media
+    from bentray.scenes.field_models import FieldSpec
+    from bentray.scenes.schema import Solver
+
+    case = CASES["A-LD"]
+    profile = case.profile()
+    med = build_media(profile, "parabolic", Solver(), np.array(case.domain_min), np.array(case.domain_max))
+    n_az = max(int(round(np.sqrt(count / 20.0))), 1)
+    n_el = max(count // n_az, 2)
+    el = np.linspace(-20.0, 20.0, n_el)
+    az = np.linspace(-10.0, 10.0, n_az) if n_az > 1 else np.zeros(1)
+    e, a = np.meshgrid(np.radians(el), np.radians(az), indexing="ij")
+    e, a = e.ravel(), a.ravel()
+    d = np.column_stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+    src = np.asarray([case.source], float)
+    n = d.shape[0]
+    spec = FieldSpec(origin=(25.0, -40.0, 1.5), spacing=(25.0, 20.0, 5.0), shape=(120, 5, 7), mode="incoherent")
+    n_mat = int(med.mesh.face_material.max()) + 1
+    template = beam_field.prepare(
+        spec,
+        elevation_deg=el,
+        azimuth_deg=az,
+        n_rays=n,
+        source_index=np.zeros(n, np.int64),
+        source_powers_w=None,
+        materials=[200_000.0] * n_mat,
+        max_reflections=_KW["max_reflections"],
+        c_ref=float(profile.c_ref),
+        ground_sound_speed=340.0,
+        n_face_materials=n_mat,
+    )
+    return {
+        "name": "A-LD slabs, beams",
+        "mesh": med.mesh,
+        "c_ref": float(profile.c_ref),
+        "origins": np.repeat(src, n, axis=0),
+        "directions": d,
+        "start_cells": np.repeat(med.locate(src), n),
+        "template": template,
+        "points": spec.shape[0] * spec.shape[1] * spec.shape[2],
+        "bands": len(spec.frequencies_hz),
+    }
+
+
+def _field_rows(fc: dict[str, Any], repeats: int, min_total: float, device_name: str) -> list[dict[str, Any]]:
+    """The CPU and GPU rows of the field case (warm: each path is called once before it is timed)."""
+    from bentray.engine.gpu.tracer import trace_cuda
+    from bentray.engine.tracer import trace
+
+    tpl = fc["template"]
+    args = (fc["mesh"], "parabolic", fc["c_ref"], fc["origins"], fc["directions"], fc["start_cells"])
+    n = fc["origins"].shape[0]
+
+    def cpu() -> Any:
+        buf = tpl.like(tpl.weights)
+        trace(*args, field=buf, **_KW)
+        return buf.collapse()
+
+    cpu()
+    cpu_s, cpu_buf = best_time(cpu, repeats, min_total)
+    base = {"scene": fc["name"], "rays": n, "points": fc["points"], "bands": fc["bands"]}
+    hits = float(cpu_buf.collapsed.hits.sum())
+    rows = [
+        {
+            **base,
+            "device": f"cpu ({numba.get_num_threads()} threads)",
+            "kernel_s": cpu_s,
+            "trace_time_s": cpu_s,
+            "rays_per_s": n / cpu_s,
+            "deposits_per_s": hits / cpu_s,
+        }
+    ]
+    t0 = time.perf_counter()
+    first_buf = tpl.like(tpl.weights, n_slots=1)
+    _, first = trace_cuda(*args, beams=first_buf, **_KW)
+    first_wall = time.perf_counter() - t0
+    best: dict[str, float] | None = None
+    gpu_buf = None
+    for _ in range(max(repeats, 1)):
+        buf = tpl.like(tpl.weights, n_slots=1)
+        _, tim = trace_cuda(*args, beams=buf, **_KW)
+        if best is None or tim["kernel"] < best["kernel"]:
+            best, gpu_buf = tim, buf
+    assert best is not None and gpu_buf is not None
+    gpu_buf.collapse()
+    a, b = cpu_buf.collapsed, gpu_buf.collapsed
+    both = (a.energy > 0) | (b.energy > 0)
+    rel = np.abs(a.energy - b.energy)[both] / np.maximum(np.abs(a.energy), np.abs(b.energy))[both]
+    per_call = best["rays_transfer"] + best["kernel"] + best["copy_back"]
+    rows.append(
+        {
+            **base,
+            "device": device_name,
+            "compile_s": first["compile"],
+            "rays_transfer_s": best["rays_transfer"],
+            "kernel_s": best["kernel"],
+            "copy_back_s": best["copy_back"],
+            "trace_time_s": per_call,
+            "rays_per_s": n / best["kernel"],
+            "deposits_per_s": float(b.hits.sum()) / best["kernel"],
+            "speedup": cpu_s / per_call,
+            "hits_equal": bool(np.array_equal(a.hits, b.hits)),
+            "energy_max_rel": float(rel.max()) if rel.size else 0.0,
+            "note": f"first call {first_wall:.2f} s (mesh copy, compile, launch)",
+        }
+    )
+    return rows
 
 
 def _cpu_row(sc: Any, repeats: int, min_total: float) -> tuple[dict[str, Any], Any]:
@@ -155,4 +293,15 @@ def run(quick: bool, scene_cache: dict[str, Any] | None = None) -> Section:
         "kernel time; end_to_end adds the per-call ray transfers; the first call's mesh copy and compile are apart."
     )
     sec.tables.append(table)
+    n_field = 2_000 if quick else 20_000
+    ftable = Table("gpu_field", "Beam field on the CPU and on the CUDA device (A-LD slabs)", FIELD_COLUMNS)
+    for row in _field_rows(_field_case(n_field), repeats, min_total, why):
+        ftable.add(**row)
+    sec.text.append(
+        f"Field: {n_field:,} rays (a launch grid, elevation -20..20 deg, azimuth -10..10 deg) with beams onto a "
+        "120 x 5 x 7 grid, 8 octave bands, incoherent, rigid ground; CPU per-thread slots against GPU atomics into "
+        "one accumulator (the sum order differs: energy_max_rel is that rounding, plus FMA / libdevice on a "
+        "device); deposits = beam contributions to points."
+    )
+    sec.tables.append(ftable)
     return sec

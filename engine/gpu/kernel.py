@@ -1,4 +1,4 @@
-"""The analytic traversal as a CUDA kernel (numba-cuda): one thread per ray, final ray states.
+"""The analytic traversal as a CUDA kernel (numba-cuda): one thread per ray, final ray states and beam fields.
 
 Shared steps, not a forked traversal. numba-cuda compiles a CPU-jitted (nopython) dispatcher that a CUDA
 kernel calls as a CUDA device function from the same Python source
@@ -9,14 +9,22 @@ So this kernel calls the CPU traversal's named steps themselves: the curve inter
 them parabolic.py, circular.py, nlinear.py, roots.py), the cell model and robustness steps of
 kernels/traverse.py (_media_at, _chord_middle, _tangent_face, _walk, _nudge, _onto_face) and the wind
 (wind.effective_quantity). What is written here is only the per-ray loop of ``traverse.trace_one`` that ties
-them together, without its field, beam, paraxial and path-recording hooks (``trace_one`` itself allocates
-numpy arrays, which a CUDA kernel cannot: its scratch arrays become ``cuda.local.array`` here). The loop is
-statement for statement trace_one's, so the same rays take the same steps.
+them together, with its paraxial and beam hooks (kernels/paraxial.py: launch, restart, advance, onto_face,
+reflect; the beam samples of engine/gpu/beam_device.py, which calls kernels/beams.py's steps and accumulates
+with atomics) and without its voxel-field and path-recording hooks (``trace_one`` itself allocates numpy
+arrays, which a CUDA kernel cannot: its scratch arrays become ``cuda.local.array`` here, the per-band beam
+amplitudes rows of a global beam_device.BeamScratch). The loop is statement for statement trace_one's, so the
+same rays take the same steps and deposit the same chords.
 
-Kernel contract as on the CPU: ``trace_rays_cuda[blocks, threads](mesh, prm, rays)`` with mesh a
-mesh.cells.CellMesh of device arrays, prm a traverse.RayParams, rays a traverse.Rays (out_state, out_counts,
-refl_cos, refl_mat written; f_weights and out_par unused). Ray i is thread i; nothing is shared between
-threads, so the ray states do not depend on the launch configuration or on the order threads run in.
+Kernel contract as on the CPU: ``trace_rays_cuda[blocks, threads](mesh, prm, rays, b_grid, b_acc, b_tabs,
+p_grid, p_acc, b_pts, b_scr)`` with mesh a mesh.cells.CellMesh of device arrays, prm a traverse.RayParams, rays
+a traverse.Rays (out_state, out_counts, refl_cos, refl_mat written; f_weights: the beams' per-ray directivity
+factors (n, F) or (n, 0); out_par unused), then the beam field as traverse.trace_rays takes it (beams.BeamGrid,
+BeamAcc, BeamTables for the grid, the same for the receiver points with beams.BeamPoints; beam_field.no_beam_args
+for none: mode BEAM_OFF, no points) and b_scr a beam_device.BeamScratch with one row per thread. Ray i is thread
+i. The ray states share nothing between threads, so they do not depend on the launch configuration or on the
+order threads run in; the beam accumulators (slot 0 only) are shared and summed with atomics, in no defined order
+(beam_device.py's docstring).
 
 Determinism against the CPU: under numba's CUDA simulator the steps run as the same CPU code, so the states
 are bit-identical (tests/gpu). On a device, NVVM contracts a * b + c into fused multiply-adds (numba-cuda
@@ -34,6 +42,7 @@ import numba as nb
 from numba import cuda as _cuda
 
 from bentray.engine.constants import (
+    BEAM_KICK_BOUND_NZ,
     BOUNDARY_REFLECT,
     COUNT_CROSSINGS,
     COUNT_NUDGES,
@@ -60,21 +69,28 @@ from bentray.engine.constants import (
     STATUS_TIME_LIMIT,
     TINY_STEP_REL,
 )
-from bentray.engine.kernels import curves
-from bentray.engine.kernels.traverse import _chord_middle, _media_at, _nudge, _onto_face, _tangent_face
+from bentray.engine.gpu.beam_device import beam_segment_device, ray_sample_device
+from bentray.engine.kernels import beams, curves, paraxial
+from bentray.engine.kernels.traverse import _chord_middle, _media_at, _nudge, _onto_face, _p_at, _tangent_face
 from bentray.engine.wind import WIND_NONE, effective_quantity
 
 __all__ = ["THREADS_PER_BLOCK", "trace_rays_cuda"]
 
 cuda: Any = _cuda  # numba.cuda's grid / local are injected at run time (no type information)
 
-_CS_SIZE = curves.CS_SIZE  # a module constant: cuda.local.array needs a compile-time literal size
+_CS_SIZE = curves.CS_SIZE  # module constants: cuda.local.array needs a compile-time literal size
+_PAR_SIZE = paraxial.PAR_SIZE
+_SAMPLE_SIZE = beams.SAMPLE_SIZE
+_POINT_SCRATCH = beams.POINT_SCRATCH
+_PB_SIZE = beams.PB_SIZE
+_S_ARC = beams.S_ARC
 THREADS_PER_BLOCK = 128  # rays per block: the loop is register-heavy, small blocks keep occupancy up
 
 
 @cuda.jit
-def trace_rays_cuda(mesh, prm, rays):  # noqa: C901 (trace_one's loop, kept as one function as on the CPU)
-    """Trace ray ``cuda.grid(1)`` of ``rays`` through ``mesh`` to its end state (see the module docstring)."""
+def trace_rays_cuda(mesh, prm, rays, b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts, b_scr):  # noqa: C901
+    """Trace ray ``cuda.grid(1)`` of ``rays`` through ``mesh`` to its end state, depositing its beams (see the
+    module docstring; trace_one's loop, kept as one function as on the CPU)."""
     i_ray = cuda.grid(1)
     if i_ray >= rays.origins.shape[0]:
         return
@@ -129,6 +145,69 @@ def trace_rays_cuda(mesh, prm, rays):  # noqa: C901 (trace_one's loop, kept as o
     t = 0.0
     s = 0.0
     cell = rays.start_cells[i_ray]
+    # paraxial state and beam samples (docs/physics.md §10-11; parabolic curve), as in trace_one
+    beam = beams.Beam(b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts)
+    deposit_on = b_grid.mode != beams.BEAM_OFF or b_pts.xyz.shape[0] > 0
+    par_on = deposit_on and cell >= 0
+    par = cuda.local.array(_PAR_SIZE, nb.float64)
+    par_tmp = cuda.local.array(_PAR_SIZE, nb.float64)
+    for i in range(_PAR_SIZE):
+        par[i] = 0.0
+        par_tmp[i] = 0.0
+    p_end = cuda.local.array(3, nb.float64)
+    xs = cuda.local.array(3, nb.float64)
+    ts = cuda.local.array(3, nb.float64)
+    for i in range(3):
+        p_end[i] = 0.0
+    s_last = cuda.local.array(_SAMPLE_SIZE, nb.float64)
+    s_cur = cuda.local.array(_SAMPLE_SIZE, nb.float64)
+    for i in range(_SAMPLE_SIZE):
+        s_last[i] = 0.0
+        s_cur[i] = 0.0
+    ist = cuda.local.array(3, nb.int64)
+    for i in range(3):
+        ist[i] = 0
+    amp_last = b_scr.amp_last[i_ray]
+    amp_cur = b_scr.amp_cur[i_ray]
+    amp0 = b_scr.amp0[i_ray]
+    n_bands = amp0.shape[0]
+    for f in range(n_bands):
+        amp_last[0, f] = 0.0
+        amp_last[1, f] = 0.0
+        amp_cur[0, f] = 0.0
+        amp_cur[1, f] = 0.0
+        amp0[f] = 1.0
+    bray = beams.BeamRay(
+        s_last,
+        s_cur,
+        amp_last,
+        amp_cur,
+        ist,
+        amp0,
+        cuda.local.array(_POINT_SCRATCH, nb.float64),
+        cuda.local.array(_PB_SIZE, nb.float64),
+    )
+    if deposit_on and rays.f_weights.shape[1] == n_bands:  # beams: f_weights = directivity factors
+        for f in range(n_bands):
+            amp0[f] = rays.f_weights[i_ray, f]
+    launch_cos = math.sqrt(d[0] * d[0] + d[1] * d[1])
+    p_norm = 1.0
+    if par_on:
+        m_start = _media_at(media_ref, ref_point, gradient, cell, x)
+        if wind_on:
+            m_start = effective_quantity(
+                curve, c_ref, m_start, gradient[cell], ray_wind, wind_params, x, e_wind, w_grad, g_eff
+            )
+        if m_start > 0.0:
+            p_norm = math.sqrt(m_start)
+            paraxial.launch(par, d, p_norm)
+            if deposit_on:
+                ray_sample_device(
+                    beam, bray, x, d, 0.0, 0.0, p_norm / c_ref, par, (0, refl_cos, refl_mat, launch_cos), True
+                )
+        else:
+            par_on = False
+    deposit_on = deposit_on and par_on
     entry = -1
     reflections = 0
     crossings = 0
@@ -186,6 +265,10 @@ def trace_rays_cuda(mesh, prm, rays):  # noqa: C901 (trace_one's loop, kept as o
         if not curves.setup(curve, m0, g, d, cs):
             status = STATUS_LOST
             break
+        if par_on:  # the segment restarts from this cell's model at x: p' = n'(x) d (docs/physics.md §10)
+            n_new = math.sqrt(m0)
+            paraxial.restart(par, d, p_norm, n_new, g)
+            p_norm = n_new
         cell_size = size[cell]
         face, param = curves.find_exit(
             curve, cs, x, d, planes[cell], neighbours[cell], exclude, ON_FACE_REL * cell_size, cell_size
@@ -219,6 +302,35 @@ def trace_rays_cuda(mesh, prm, rays):  # noqa: C901 (trace_one's loop, kept as o
         if t + dt >= max_time:
             param_end = curves.param_at_time(curve, cs, max_time - t, param, c_ref)
             ds = curves.evaluate(curve, cs, x, d, param_end, xn, dn)
+            if par_on:  # HOOK (a), paraxial: the last segment, to max_time
+                if deposit_on:
+                    beam_segment_device(
+                        beam,
+                        bray,
+                        prm,
+                        cs,
+                        x,
+                        d,
+                        (param_end, t, s, ds),
+                        par,
+                        (par_tmp, p_end, xs, ts),
+                        (reflections, refl_cos, refl_mat, launch_cos),
+                    )
+                paraxial.advance(par, param_end)
+                p_norm = _p_at(cs, param_end, p_end)
+                if deposit_on:
+                    ray_sample_device(
+                        beam,
+                        bray,
+                        xn,
+                        dn,
+                        max_time,
+                        s + ds,
+                        p_norm / c_ref,
+                        par,
+                        (reflections, refl_cos, refl_mat, launch_cos),
+                        False,
+                    )
             for i in range(3):
                 x[i] = xn[i]
                 d[i] = dn[i]
@@ -231,6 +343,41 @@ def trace_rays_cuda(mesh, prm, rays):  # noqa: C901 (trace_one's loop, kept as o
             zero_run = 0
         elif param != 0.0:
             zero_run += 1
+        if par_on:  # HOOK (a), paraxial: samples inside the segment, derivatives at its end (on its face)
+            if deposit_on:
+                beam_segment_device(
+                    beam,
+                    bray,
+                    prm,
+                    cs,
+                    x,
+                    d,
+                    (param, t, s, ds),
+                    par,
+                    (par_tmp, p_end, xs, ts),
+                    (reflections, refl_cos, refl_mat, launch_cos),
+                )
+            paraxial.advance(par, param)
+            p_norm = _p_at(cs, param, p_end)
+            if face >= 0:
+                # exact derivatives, unless the face is slanted: then the kick of a near-tangential crossing is
+                # bounded (constants.BEAM_KICK_BOUND_NZ; docs/physics.md §11); par_on implies deposit_on here
+                slanted = abs(planes[cell, face, 2]) < BEAM_KICK_BOUND_NZ
+                bound = cell_size / p_norm if deposit_on and slanted else math.inf
+                paraxial.onto_face(par, planes[cell, face], p_end, g, bound)
+                if deposit_on and (neighbours[cell, face] < 0 or s + ds - bray.last[_S_ARC] >= b_tabs.chord_m):
+                    ray_sample_device(
+                        beam,
+                        bray,
+                        xn,
+                        dn,
+                        t + dt,
+                        s + ds,
+                        p_norm / c_ref,
+                        par,
+                        (reflections, refl_cos, refl_mat, launch_cos),
+                        False,
+                    )
         for i in range(3):
             x[i] = xn[i]
             d[i] = dn[i]
@@ -280,9 +427,28 @@ def trace_rays_cuda(mesh, prm, rays):  # noqa: C901 (trace_one's loop, kept as o
                 d[i] /= norm
             reflections += 1
             entry = face
+            if par_on:
+                paraxial.reflect(par, planes[cell, face])
+                if deposit_on:
+                    ray_sample_device(
+                        beam,
+                        bray,
+                        x,
+                        d,
+                        t,
+                        s,
+                        p_norm / c_ref,
+                        par,
+                        (reflections, refl_cos, refl_mat, launch_cos),
+                        True,
+                    )
         else:
             status = STATUS_EXITED
             break
+    if deposit_on and s > bray.last[_S_ARC]:  # HOOK (d), paraxial: the last chord
+        ray_sample_device(
+            beam, bray, x, d, t, s, p_norm / c_ref, par, (reflections, refl_cos, refl_mat, launch_cos), False
+        )
     for k in range(3):
         out_state[STATE_X + k] = x[k]
         out_state[STATE_D + k] = d[k]

@@ -53,10 +53,31 @@ def main() -> dict:
         np.zeros((n, COUNT_SIZE), np.int64),
         np.zeros((0, PAR_OUT_SIZE)),
     )
-    sig = tuple(numba.typeof(a) for a in (mesh, prm, rays))
+    # beam arguments of a semicoherent field with receivers (the types are the same for every mode and for
+    # no_beam_args(): one compiled kernel)
+    from bentray.engine.beam_field import BeamBuffers, bin_points, no_beam_args
+    from bentray.engine.field_buffers import FieldGrid
+    from bentray.engine.gpu.beam_device import BeamScratch
+    from bentray.engine.kernels.beams import BEAM_SEMICOHERENT
+
+    g, _, t, _, _, _ = no_beam_args(2)
+    g = g._replace(mode=BEAM_SEMICOHERENT)
+    buf = BeamBuffers("semicoherent", FieldGrid(np.zeros(3), np.ones(3), (2, 2, 2)), g, t, np.zeros((n, 2)), 1,
+                      g, bin_points(np.ones((3, 3))))  # fmt: skip
+    scr = BeamScratch(np.zeros((n, 2, 2)), np.zeros((n, 2, 2)), np.zeros((n, 2)))
+    args = (mesh, prm, rays, *buf.kernel_args(), scr)
+    sig = tuple(numba.typeof(a) for a in args)
+    assert sig == tuple(numba.typeof(a) for a in (mesh, prm, rays, *no_beam_args(2), scr))
     t0 = time.perf_counter()
     ptx, _ = cuda.compile_ptx(trace_rays_cuda.py_func, sig, cc=cc)
-    return {"ptx_chars": len(ptx), "compile_s": time.perf_counter() - t0, "cc": list(cc)}
+    atomics = [ln.strip().split()[0] for ln in ptx.splitlines() if ".add.f64" in ln and ("atom" in ln or "red" in ln)]
+    return {
+        "ptx_chars": len(ptx),
+        "compile_s": time.perf_counter() - t0,
+        "cc": list(cc),
+        "f64_atomic_adds": len(atomics),
+        "atomic_kinds": sorted(set(atomics)),
+    }
 
 
 if __name__ == "__main__":

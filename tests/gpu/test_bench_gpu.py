@@ -48,7 +48,7 @@ def test_auto_picks_cuda_only_on_a_device_and_a_large_job(monkeypatch):
     assert device.resolve_device("auto", device.AUTO_MIN_RAYS)[0] == "cuda"
 
 
-def test_cuda_for_a_job_with_a_field_or_paths_is_an_error_naming_solver_device():
+def test_cuda_for_a_job_with_a_voxel_field_or_paths_is_an_error_naming_solver_device():
     from types import SimpleNamespace
 
     from bentray.engine.batches import _on_cuda
@@ -59,7 +59,26 @@ def test_cuda_for_a_job_with_a_field_or_paths_is_an_error_naming_solver_device()
         SimpleNamespace(device="cuda", field=object(), path_samples=0, n_rays=10),
         SimpleNamespace(device="cuda", field=None, path_samples=400, n_rays=10),
     ):
-        with pytest.raises(JobInputError, match=r"^solver\.device: 'cuda' traces final ray states only"):
+        with pytest.raises(
+            JobInputError, match=r"^solver\.device: 'cuda' traces final ray states and beam fields only"
+        ):
             _on_cuda(plan)  # type: ignore[arg-type]
     # auto keeps such a job on the CPU without asking for a device
     assert not _on_cuda(SimpleNamespace(device="auto", field=object(), path_samples=0, n_rays=10**7))
+
+
+def test_cuda_takes_a_beam_field_job(monkeypatch):
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from bentray.engine.batches import _on_cuda
+    from bentray.engine.beam_field import BeamBuffers, no_beam_args
+
+    monkeypatch.setattr(device, "cuda_status", lambda: (True, "CUDA device X"))
+    monkeypatch.delenv("NUMBA_ENABLE_CUDASIM", raising=False)
+    g, _, t, pg, _, pts = no_beam_args()
+    beams = BeamBuffers("incoherent", None, g, t, np.zeros((0, 1)), 1, pg, pts)
+    assert _on_cuda(SimpleNamespace(device="cuda", field=beams, path_samples=0, n_rays=10))  # type: ignore[arg-type]
+    assert _on_cuda(SimpleNamespace(device="auto", field=beams, path_samples=0, n_rays=device.AUTO_MIN_RAYS))  # type: ignore[arg-type]
+    assert not _on_cuda(SimpleNamespace(device="auto", field=beams, path_samples=0, n_rays=10))  # type: ignore[arg-type]

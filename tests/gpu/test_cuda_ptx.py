@@ -1,6 +1,7 @@
 """Issue 17: the CUDA kernel compiles for a real device (sm_90 PTX) with every shared CPU-jitted step it calls,
-without a device and without the simulator (``python -m tests.gpu.ptx_check`` in a subprocess). Skipped when
-numba-cuda or NVRTC / NVVM (the nvidia-cuda-nvrtc / nvidia-cuda-nvcc wheels) are missing. About 70 s: slow."""
+beam hooks and float64 atomics included, without a device and without the simulator (``python -m
+tests.gpu.ptx_check`` in a subprocess). Skipped when numba-cuda or NVRTC / NVVM (the nvidia-cuda-nvrtc /
+nvidia-cuda-nvcc wheels) are missing. Several minutes on a loaded machine: slow."""
 
 from __future__ import annotations
 
@@ -28,3 +29,5 @@ def test_cuda_kernel_compiles_to_ptx_without_a_device():
     assert proc.returncode == 0, proc.stderr[-3000:]
     out = json.loads(proc.stdout.strip().splitlines()[-1])
     assert out["ptx_chars"] > 10_000
+    # the beam accumulation is lowered to float64 atomics (weight, hits, energy, s_re, s_im; grid and receivers)
+    assert out["f64_atomic_adds"] >= 5, out
