@@ -32,7 +32,18 @@ import numpy as np
 from bentray.engine.acoustics.ground import ground_impedance, spherical_wave_coefficient
 from bentray.engine.diffraction.kernels import EPS_ON_BOUNDARY, fresnel_segment, wedge_coefficients
 from bentray.engine.diffraction.legs import Legs, straight_legs
-from bentray.engine.diffraction.wedge import DiffractedLeg, Edge, boundary_share, cylindrical, edge_legs, utd_field
+from bentray.engine.diffraction.wedge import (
+    DiffractedLeg,
+    Edge,
+    boundary_min,
+    cross,
+    cylindrical,
+    edge_legs,
+    finite_share,
+    rows_dot,
+    share_near_boundary,
+    utd_field,
+)
 
 __all__ = ["GroundSide", "LegModel", "double_edge_paths", "edge_paths"]
 
@@ -54,11 +65,12 @@ MIN_LEG_M = 1e-6  # shortest leg of a diffracted path (m); see double_edge_paths
 
 
 def _angle(edge: Edge, v: np.ndarray) -> np.ndarray:
-    """Angle (rad, [0, 2 pi)) of directions v (N, 3) about the edge, from face 0."""
+    """Angle (rad, [0, 2 pi)) of directions v (N, 3) about the edge (or edge i for row i of a batch), from
+    face 0."""
     e = np.asarray(edge.direction, float)
     a = np.asarray(edge.face0, float)
-    b = np.cross(e, a)
-    return np.mod(np.arctan2(v @ b, v @ a), 2.0 * np.pi)
+    b = cross(e, a)
+    return np.mod(np.arctan2(rows_dot(v, b), rows_dot(v, a)), 2.0 * np.pi)
 
 
 def _q(f_hz: np.ndarray, c: float, side: GroundSide, cos_t: np.ndarray, r2: np.ndarray) -> np.ndarray:
@@ -91,6 +103,7 @@ def edge_paths(
     (z_s - g + z_r - g) / R2, R2 = s_in + s_out): on the boundary that is the ground-reflected geometric
     wave's, which the diffracted wave must meet; rec_ground is not used.
 
+    edge: one edge, or a batch of N (class Edge: edge i for point i; not with visible_only).
     src (3,) or (N, 3), rec (N, 3) metres; f_hz (F,) band centres; c_ref (m/s) the phase speed (k =
     2 pi f / c_ref, phases 2 pi f t along curved legs); grounds None: no reflection on that side.
     Combination order: (S, R), (S', R), (S, R'), (S', R'); absent images give zeros."""
@@ -98,6 +111,7 @@ def edge_paths(
     src = np.broadcast_to(np.asarray(src, float), rec.shape).copy()
     f_hz = np.atleast_1d(np.asarray(f_hz, float))
     if visible_only and not geometric:  # evaluate only where some combination sees both ends (speed)
+        assert np.ndim(edge.point) == 1, "visible_only takes one edge, not a batch"
         mask = _any_seen(edge, src, rec, src_ground, rec_ground)
         if not mask.all():
             out_all = np.zeros((4, len(f_hz), rec.shape[0]), complex)
@@ -123,14 +137,14 @@ def edge_paths(
             continue
         s_pts, gs = sides[0][si]
         r_pts, gr = sides[1][ri]
-        straight = edge_legs(edge, s_pts, r_pts, float(k[len(k) // 2]))
+        straight = edge_legs(edge, s_pts, r_pts, float(k[len(k) // 2]), share=False)
         e_pts = np.asarray(edge.point, float) + straight.y_e[:, None] * np.asarray(edge.direction, float)
         leg_a = leg_fn(s_pts, e_pts)
         leg_b = leg_fn(e_pts, r_pts)
         leg_a = leg_a._replace(length=np.maximum(leg_a.length, MIN_LEG_M))  # a point on the edge: finite
         leg_b = leg_b._replace(length=np.maximum(leg_b.length, MIN_LEG_M))
         e = np.asarray(edge.direction, float)
-        sin_b0 = np.linalg.norm(np.cross(leg_a.t_end, e), axis=1)
+        sin_b0 = np.linalg.norm(cross(leg_a.t_end, e), axis=1)
         leg = DiffractedLeg(
             leg_a.length,
             leg_b.length,
@@ -141,9 +155,11 @@ def edge_paths(
             straight.share,
         )
         p = np.empty((len(k), n_pts), complex)
+        finite = bool(np.isfinite(edge.y_min) or np.isfinite(edge.y_max))
+        a_min = boundary_min(edge.n, straight.phi_out, straight.phi_in) if finite else None
         for f in range(len(k)):  # the finite-edge share depends a little on k
-            if np.isfinite(edge.y_min) or np.isfinite(edge.y_max):
-                leg = leg._replace(share=edge_legs(edge, s_pts, r_pts, float(k[f])).share)
+            if finite:
+                leg = leg._replace(share=finite_share(edge, straight, float(k[f]), a_min))
             p[f] = utd_field(edge.n, leg, k[f : f + 1], phase_m=c_ref * (leg_a.time + leg_b.time))[0]
         if visible_only:
             p *= (_seen(_angle(edge, s_pts - e_pts), edge.n) * _seen(_angle(edge, r_pts - e_pts), edge.n))[None, :]
@@ -241,10 +257,10 @@ def _any_seen(
     visibility weights are applied afterwards."""
     n = edge.n
     out = np.zeros(rec.shape[0], bool)
-    for s_pts, _ in _images(src_ground, src):
-        for r_pts, _ in _images(rec_ground, rec):
-            rho0, phi0, y0 = cylindrical(edge, s_pts)
-            rho, phi, y = cylindrical(edge, r_pts)
+    s_phis = [None if rec_only else cylindrical(edge, s_pts)[1] for s_pts, _ in _images(src_ground, src)]
+    r_phis = [None if src_only else cylindrical(edge, r_pts)[1] for r_pts, _ in _images(rec_ground, rec)]
+    for phi0 in s_phis:
+        for phi in r_phis:
             ok = np.ones(rec.shape[0], bool)
             if not rec_only:
                 ok &= (phi0 <= n * np.pi + slack) | (phi0 >= 2 * np.pi - slack)
@@ -323,8 +339,8 @@ def double_edge_paths(
     gap = float(np.linalg.norm((p2 - p1) - y2_0 * ea))
     for ci, (s_pts, gs) in enumerate(_images(src_ground, src)):
         for ri, (r_pts, gr) in enumerate(_images(None if lateral else rec_ground, rec)):
-            rho_s = np.linalg.norm(np.cross(s_pts - p1, ea), axis=1)
-            rho_r = np.linalg.norm(np.cross(r_pts - p2, ea), axis=1)
+            rho_s = np.linalg.norm(cross(s_pts - p1, ea), axis=1)
+            rho_r = np.linalg.norm(cross(r_pts - p2, ea), axis=1)
             ys = (s_pts - p1) @ ea
             yr = (r_pts - p1) @ ea
             tot = rho_s + gap + rho_r
@@ -338,7 +354,7 @@ def double_edge_paths(
             # valid there anyway, and the level stays finite instead of dividing by zero
             s2 = np.maximum(np.linalg.norm(q2 - q1, axis=1), MIN_LEG_M)
             s1, s3 = np.maximum(leg_a.length, MIN_LEG_M), np.maximum(leg_c.length, MIN_LEG_M)
-            sin_b = np.maximum(np.linalg.norm(np.cross(leg_a.t_end, ea), axis=1), 1e-12)
+            sin_b = np.maximum(np.linalg.norm(cross(leg_a.t_end, ea), axis=1), 1e-12)
             mid = (q2 - q1) / np.maximum(s2, 1e-300)[:, None]
             phi1_in = _angle(e1, -leg_a.t_end)
             phi1_out = _clamp_angle(_angle(e1, mid), e1.n)
@@ -359,11 +375,12 @@ def double_edge_paths(
                 (e1, y1, s1, s2 + s3, phi1_out, phi1_in, l1),
                 (e2, sign2 * (y2 - y2_0), s1 + s2, s3, phi2_out, phi2_in, l2),
             )
+            near = [((y_loc >= edge.y_min) & (y_loc <= edge.y_max), boundary_min(edge.n, phi, phip))
+                    for edge, y_loc, _, _, phi, phip, _ in ends]  # fmt: skip
             for f in range(len(k)):
-                for edge, y_loc, s_a, s_b, phi, phip, dist_l in ends:
+                for (edge, y_loc, s_a, s_b, _, _, dist_l), (inside, a_min) in zip(ends, near, strict=True):
                     sh = _share(edge, y_loc, sin_b, s_a, s_b, float(k[f]))
-                    inside = (y_loc >= edge.y_min) & (y_loc <= edge.y_max)
-                    share[f] *= boundary_share(sh, inside, edge.n, phi, phip, float(k[f]) * dist_l)
+                    share[f] *= share_near_boundary(sh, inside, (float(k[f]) * dist_l) * a_min)
             p = 0.5 * d1 * d2 * np.exp(1j * k[:, None] * phase[None, :]) / np.sqrt(s1 * s2 * s3 * (s1 + s2 + s3))
             p *= share * seen[None, :]
             if gs is not None and lateral:

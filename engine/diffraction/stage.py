@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -287,8 +288,9 @@ def source_model(
 
         rg = GroundSide(np.asarray(rec_ground.z, float)[cand] if np.ndim(rec_ground.z) else rec_ground.z,
                         rec_ground.flow_resistivity, rec_ground.reflect)  # fmt: skip
-        parts = obstacle_model(ob, src, pts[cand], f_hz, c_ref, src_ground, rg, legs, blocked, plan_crosses, paths)
-        rel, p = _energy(parts, coherent)
+        model = partial(_chunk_model, ob, src, pts[cand], f_hz, c_ref, src_ground, rg, legs, blocked, plan_crosses,
+                        paths, coherent)  # fmt: skip
+        rel, p = _in_chunks(model, cand.size, n_f)
         wc = w[:, cand]
         take = (wc > best_w[:, cand]) | ((wc == best_w[:, cand]) & (wc >= 1.0) & (rel < best_rel[:, cand]))
         for arr, val in ((best_w, wc), (best_rel, rel), (best_p, p)):
@@ -296,6 +298,57 @@ def source_model(
             sub[take] = val[take]
             arr[:, cand] = sub
     return best_w, best_rel, best_p, stats
+
+
+MODEL_CHUNK_MIN = 1024  # points per thread of the obstacle model (smaller: not split)
+
+
+def _chunk_model(
+    ob: Obstacle,
+    src: np.ndarray,
+    pts: np.ndarray,
+    f_hz: np.ndarray,
+    c_ref: float,
+    src_ground: GroundSide,
+    rec_ground: GroundSide,
+    legs: LegModel,
+    blocked: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    plan_crosses: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    paths: tuple[str, ...],
+    coherent: bool,
+    sl: slice,
+) -> tuple[np.ndarray, np.ndarray]:
+    """_energy(obstacle_model(...)) for the points pts[sl] (rec_ground's per-point heights sliced too)."""
+    g = rec_ground
+    if np.ndim(g.z):
+        g = GroundSide(np.asarray(g.z, float)[sl], g.flow_resistivity, g.reflect)
+    parts = obstacle_model(ob, src, pts[sl], f_hz, c_ref, src_ground, g, legs, blocked, plan_crosses, paths)
+    return _energy(parts, coherent)
+
+
+def _in_chunks(
+    model: Callable[[slice], tuple[np.ndarray, np.ndarray]], n: int, n_f: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """model(slice of the n points) -> (rel (F, m), p (F, m)), run on point chunks in threads (numpy and the
+    nogil UTD kernels release the GIL; numba.get_num_threads() workers, the job's --threads) and put
+    together. Every point's result depends on that point alone, so the chunks change no bit."""
+    import numba
+
+    workers = max(1, min(numba.get_num_threads(), n // MODEL_CHUNK_MIN))
+    if workers == 1:
+        return model(slice(0, n))
+    from concurrent.futures import ThreadPoolExecutor
+
+    bounds = np.linspace(0, n, workers + 1).astype(int)
+    slices = [slice(int(a), int(b)) for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        results = list(pool.map(model, slices))
+    rel = np.empty((n_f, n))
+    p = np.empty((n_f, n), complex)
+    for sl, (r, q) in zip(slices, results, strict=True):
+        rel[:, sl] = r
+        p[:, sl] = q
+    return rel, p
 
 
 def _leg_model(profile: Any, wind: Any, c_ref: float) -> tuple[LegModel, str]:

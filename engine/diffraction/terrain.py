@@ -24,13 +24,71 @@ from typing import Any
 import numpy as np
 
 from bentray.engine.acoustics.weighting import a_weighting_db
+from bentray.engine.diffraction.crests import CrestPaths, GridTerrain, crest_search
 from bentray.engine.diffraction.paths import GroundSide, LegModel, edge_paths
 from bentray.engine.diffraction.wedge import Edge
 from bentray.engine.field_sources import COMBINATION, DIFFRACTED, NONE, Contribution, combine
 
-__all__ = ["TERRAIN_SCREEN_SAMPLES", "screen_pressure", "stage_terrain_screening"]
+__all__ = ["TERRAIN_SCREEN_SAMPLES", "main_crests", "screen_pressure", "stage_terrain_screening"]
 
 TERRAIN_SCREEN_SAMPLES = 256  # profile samples per path (4 m on 1 km), the best refined twice 16x finer
+
+
+SCREEN_CHUNK = 2048  # points per batch (the crest search holds chunk x samples profile points)
+
+
+def _rows_linspace(lo: np.ndarray, hi: np.ndarray, num: int) -> np.ndarray:
+    """(N, num): np.linspace(lo[i], hi[i], num) per row, with numpy's scalar arithmetic (same bits)."""
+    div = num - 1
+    step = (hi - lo) / div
+    y = np.arange(num, dtype=float)[None, :] * step[:, None]
+    zero = step == 0
+    if np.any(zero):
+        y[zero] = (np.arange(num, dtype=float)[None, :] / div) * (hi - lo)[zero, None]
+    y += lo[:, None]
+    y[:, -1] = hi
+    return y
+
+
+def main_crests(
+    height: Callable[[np.ndarray], np.ndarray],
+    src: np.ndarray,
+    pts: np.ndarray,
+    samples: int,
+    grid: GridTerrain | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """(crest (N, 3), excess (N,)): per straight path src (3,) -> pts (N, 3) the profile sample with the
+    largest Fresnel parameter nu (module docstring), found on ``samples`` samples and refined twice on 33
+    between its neighbours; excess is its height above the straight line (m; NaN for a vertical path).
+
+    grid: the terrain as a height grid (the same heights as ``height``): the search then runs in the
+    Numba kernel :func:`.crests.crest_search` (parallel over the paths, bit-identical); else in numpy."""
+    n = pts.shape[0]
+    dxy = pts[:, :2] - src[:2]
+    dz = pts[:, 2] - src[2]
+    d = np.linalg.norm(pts - src, axis=1)
+    t0 = np.linspace(0.0, 1.0, samples + 2)[1:-1]
+    if grid is not None:
+        crest = np.empty((n, 3))
+        best = np.empty(n)
+        crest_search(grid, CrestPaths(src, np.ascontiguousarray(dxy), dz, d), t0, crest, best)
+        return crest, np.where(np.hypot(dxy[:, 0], dxy[:, 1]) > 0.0, best, np.nan)
+    rows = np.arange(n)
+    tt = np.broadcast_to(t0, (n, samples))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for _ in range(3):  # the sampled maximum, then twice refined between its neighbours
+            xy = src[:2] + tt[:, :, None] * dxy[:, None, :]
+            z_line = src[2] + tt * dz[:, None]
+            excess = np.asarray(height(xy.reshape(-1, 2)), float).reshape(tt.shape) - z_line
+            nu = excess * np.sqrt(d[:, None] / (tt * d[:, None] * (1.0 - tt) * d[:, None]))
+            j = np.argmax(nu, axis=1)
+            lo = tt[rows, np.maximum(j - 1, 0)]
+            hi = tt[rows, np.minimum(j + 1, tt.shape[1] - 1)]
+            crest = np.column_stack([xy[rows, j], z_line[rows, j] + excess[rows, j]])
+            best = excess[rows, j]
+            tt = _rows_linspace(lo, hi, 33)
+    best = np.where(np.hypot(dxy[:, 0], dxy[:, 1]) > 0.0, best, np.nan)
+    return crest, best
 
 
 def screen_pressure(
@@ -42,51 +100,63 @@ def screen_pressure(
     flow_resistivity: float | None,
     legs: LegModel | None = None,
     samples: int = TERRAIN_SCREEN_SAMPLES,
+    grid: GridTerrain | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(energy (F, N) |p|^2 re 1 m summed over the four combinations, p (F, N) complex coherent sum,
     screened (N,) bool: a crest obstructs the straight path) for points pts (N, 3) from src (3,).
 
-    height(xy (M, 2)) -> (M,) ground height, metres, world frame; f_hz (F,); c_ref m/s."""
+    height(xy (M, 2)) -> (M,) ground height, metres, world frame; f_hz (F,); c_ref m/s; grid: the same
+    terrain as a height grid (the crest search in Numba, :func:`main_crests`). Points go in batches of
+    SCREEN_CHUNK: the crest search and the four paths over each point's own crest (a batch of edges) are
+    whole-array operations."""
     src = np.asarray(src, float)
     pts = np.atleast_2d(np.asarray(pts, float))
+    f_hz = np.atleast_1d(np.asarray(f_hz, float))
     n_f, n = len(f_hz), pts.shape[0]
     energy = np.zeros((n_f, n))
     p = np.zeros((n_f, n), complex)
     screened = np.zeros(n, bool)
-    t = np.linspace(0.0, 1.0, samples + 2)[1:-1]
     src_ground = GroundSide(float(height(src[None, :2])[0]), flow_resistivity)
-    for i, rec in enumerate(pts):
-        dxy = rec[:2] - src[:2]
-        horizontal = float(np.hypot(*dxy))
-        if horizontal <= 0.0:
+    for a in range(0, n, SCREEN_CHUNK):
+        chunk = pts[a : a + SCREEN_CHUNK]
+        crest, excess = main_crests(height, src, chunk, samples, grid)
+        on = excess > 0.0
+        if not np.any(on):
             continue
-        d = float(np.linalg.norm(rec - src))
-        tt = t
-        for _ in range(3):  # the sampled maximum, then twice refined between its neighbours
-            xy = src[:2] + tt[:, None] * dxy
-            z_line = src[2] + tt * (rec[2] - src[2])
-            excess = np.asarray(height(xy), float) - z_line
-            nu = excess * np.sqrt(d / (tt * d * (1.0 - tt) * d))
-            j = int(np.argmax(nu))
-            lo, hi = tt[max(j - 1, 0)], tt[min(j + 1, tt.size - 1)]
-            best = (xy[j].copy(), float(z_line[j] + excess[j]), float(excess[j]))
-            tt = np.linspace(lo, hi, 33)
-        if not best[2] > 0.0:
-            continue
-        screened[i] = True
-        u = dxy / horizontal
-        crest = np.array([best[0][0], best[0][1], best[1]])
-        edge = Edge(crest, np.array([-u[1], u[0], 0.0]), np.array([0.0, 0.0, -1.0]), 2.0)
-        rec_ground = GroundSide(float(height(rec[None, :2])[0]), flow_resistivity)
-        parts = edge_paths(edge, src, rec[None, :], f_hz, c_ref, src_ground, rec_ground, legs, geometric=True)
-        energy[:, i] = (np.abs(parts[:, :, 0]) ** 2).sum(axis=0)
-        p[:, i] = parts[:, :, 0].sum(axis=0)
+        idx = a + np.nonzero(on)[0]
+        screened[idx] = True
+        rec = chunk[on]
+        dxy = rec[:, :2] - src[:2]
+        horizontal = np.hypot(dxy[:, 0], dxy[:, 1])
+        u = dxy / horizontal[:, None]
+        m = rec.shape[0]
+        edge = Edge(
+            crest[on], np.column_stack([-u[:, 1], u[:, 0], np.zeros(m)]), np.tile([0.0, 0.0, -1.0], (m, 1)), 2.0
+        )
+        rec_ground = GroundSide(np.asarray(height(rec[:, :2]), float), flow_resistivity)
+        parts = edge_paths(edge, src, rec, f_hz, c_ref, src_ground, rec_ground, legs, geometric=True)
+        energy[:, idx] = (np.abs(parts) ** 2).sum(axis=0)
+        p[:, idx] = parts.sum(axis=0)
     return energy, p, screened
+
+
+def grid_terrain(job: Any, surfaces: Any) -> GridTerrain | None:
+    """The scene's terrain as a GridTerrain when it is a height grid (the heights of
+    engine/mesh/terrain.py's terrain_height_function), else None (a TIN: the crest search stays numpy)."""
+    from bentray.engine.surfaces import HeightGrid
+
+    terrain = getattr(surfaces, "terrain", None)
+    if not isinstance(terrain, HeightGrid):
+        return None
+    lo = np.asarray(job.scene.box.min, float)
+    hi = np.asarray(job.scene.box.max, float)
+    x, y, z = (np.ascontiguousarray(np.asarray(a, float)) for a in (terrain.x, terrain.y, terrain.z))
+    return GridTerrain(x, y, z, np.array([lo[0], lo[1], hi[0], hi[1]]))
 
 
 def _sources_sum(
     job: Any, setup: Any, pts: np.ndarray, f_hz: np.ndarray, c_ref: float, height: Any, sigma: float | None,
-    legs: LegModel, coherent: bool,
+    legs: LegModel, coherent: bool, grid: GridTerrain | None,
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray]:  # fmt: skip
     n_f, n = len(f_hz), pts.shape[0]
     rel = np.zeros((n_f, n))
@@ -94,7 +164,8 @@ def _sources_sum(
     p_sum = np.zeros((n_f, n), complex) if coherent else None
     screened = np.zeros(n, bool)
     for s, source in enumerate(job.sources):
-        e, p, scr = screen_pressure(height, np.asarray(source.position, float), pts, f_hz, c_ref, sigma, legs)
+        src = np.asarray(source.position, float)
+        e, p, scr = screen_pressure(height, src, pts, f_hz, c_ref, sigma, legs, grid=grid)
         r = np.abs(p) ** 2 if coherent else e
         rel += r
         if powered is not None:
@@ -106,7 +177,14 @@ def _sources_sum(
 
 
 def _fill_receivers(
-    job: Any, setup: Any, receivers: Any, c_ref: float, height: Any, sigma: float | None, legs: LegModel
+    job: Any,
+    setup: Any,
+    receivers: Any,
+    c_ref: float,
+    height: Any,
+    sigma: float | None,
+    legs: LegModel,
+    grid: GridTerrain | None,
 ) -> int:
     """The same for receivers.csv rows without a level (field_source 0); returns how many were filled."""
     from bentray.engine.field_sources import combine_receiver_rows
@@ -121,7 +199,7 @@ def _fill_receivers(
     conts = []
     filled = np.zeros(len(rows), bool)
     for coherent in (True, False):
-        rel_t, pow_t, _, screened = _sources_sum(job, setup, pts, f_hz, c_ref, height, sigma, legs, coherent)
+        rel_t, pow_t, _, screened = _sources_sum(job, setup, pts, f_hz, c_ref, height, sigma, legs, coherent, grid)
         rel = np.zeros((len(f_hz), len(rows)))
         rel[:, todo] = rel_t
         weight = np.zeros_like(rel)
@@ -170,7 +248,8 @@ def stage_terrain_screening(
         return None
     coherent = spec.mode != "incoherent"
     pts = _field_points(job, field_arrays, height)[todo]
-    rel_t, pow_t, p_t, screened = _sources_sum(job, setup, pts, f_hz, c_ref, height, sigma, legs, coherent)
+    grid = grid_terrain(job, surfaces)
+    rel_t, pow_t, p_t, screened = _sources_sum(job, setup, pts, f_hz, c_ref, height, sigma, legs, coherent, grid)
     n_f, n_all = len(f_hz), code.size
     rel = np.zeros((n_f, n_all))
     rel[:, todo] = rel_t
@@ -189,7 +268,7 @@ def stage_terrain_screening(
     code[filled] = np.where(partial | (code[filled] == NONE), DIFFRACTED, COMBINATION)
     field_arrays.arrays["field_source"] = code.reshape(field_arrays.grid.shape)
     if receivers is not None and setup.receivers_xyz is not None:
-        out["receivers_filled"] = _fill_receivers(job, setup, receivers, c_ref, height, sigma, legs)
+        out["receivers_filled"] = _fill_receivers(job, setup, receivers, c_ref, height, sigma, legs, grid)
     out["points_filled"] = int(filled.size)
     out["points_still_without_level"] = int(todo.size - filled.size)
     out["seconds"] = time.perf_counter() - t0
