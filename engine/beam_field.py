@@ -34,8 +34,6 @@ from bentray.engine.kernels.beams import (
     BEAM_MODES,
     BEAM_OFF,
     BEAM_SEMICOHERENT,
-    BRANCH_TOL,
-    N_BRANCH,
     N_KMAH,
     W_FLOOR,
     BeamAcc,
@@ -68,90 +66,42 @@ class BeamCollapsed:
     powered: np.ndarray | None  # (F, V) W/m^2 per band with the source's power (None: no power given)
 
 
-def _new_acc(bgrid: BeamGrid, n_points: int, n_slots: int, n_branches: int | None = None) -> BeamAcc:
+def _new_acc(bgrid: BeamGrid, n_points: int, n_slots: int) -> BeamAcc:
     n_f = bgrid.omega.shape[0]
     n_g = bgrid.n_refl * N_KMAH
     coh = bgrid.mode != BEAM_INCOHERENT
     inc = bgrid.mode != BEAM_COHERENT
     s = n_slots
-    k = N_BRANCH if n_branches is None else n_branches
     return BeamAcc(
-        np.zeros((s, n_g, k, n_f, n_points) if coh else (0, 0, 0, 0, 0)),
-        np.zeros((s, n_g, k, n_f, n_points) if coh else (0, 0, 0, 0, 0)),
-        np.zeros((s, n_g, k, n_f, n_points) if inc else (0, 0, 0, 0, 0)),
-        np.zeros((s, n_g, k, n_points)),
-        np.zeros((s, n_g, k, 2, n_points)),
+        np.zeros((s, n_g, n_f, n_points) if coh else (0, 0, 0, 0)),
+        np.zeros((s, n_g, n_f, n_points) if coh else (0, 0, 0, 0)),
+        np.zeros((s, n_g, n_f, n_points) if inc else (0, 0, 0, 0)),
+        np.zeros((s, n_g, n_points)),
         np.zeros((s, n_points)),
     )
 
 
 def _empty_acc() -> BeamAcc:
-    z5 = np.zeros((0, 0, 0, 0, 0))
-    return BeamAcc(z5, z5, z5, np.zeros((0, 0, 0, 0)), z5, np.zeros((0, 0)))
+    z4 = np.zeros((0, 0, 0, 0))
+    return BeamAcc(z4, z4, z4, np.zeros((0, 0, 0)), np.zeros((0, 0)))
 
 
-def _merge_slots(acc: BeamAcc, dgamma: np.ndarray, tol: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The thread slots' branch slots merged by the kernel's rule (beams._branch_slot), in slot order.
+def _normalised(acc: BeamAcc, n_refl: int, mode: int) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray]:
+    """Slots summed, groups normalised and combined: (p (F, V) or None, energy (F, V) or None, weight (V,)).
 
-    Returns (s (G, K, F, V) complex or empty, energy (G, K, F, V) or empty, weight (G, K, V), centre
-    (G, K, 2, V)): the branch of each (slot, k) joins the first merged branch within BRANCH_TOL launch steps,
-    else the first free one, else the nearest."""
-    coh = acc.s_re.size > 0
-    inc = acc.energy.size > 0
-    w = acc.weight[0].copy()
-    c = acc.centre[0].copy()
-    s = (acc.s_re[0] + 1j * acc.s_im[0]) if coh else np.zeros((0,))
-    e = acc.energy[0].copy() if inc else np.zeros((0,))
-    n_slots, n_g, n_k, n_v = acc.weight.shape
-    for sl in range(1, n_slots):
-        for k in range(n_k):
-            w_new = acc.weight[sl, :, k]  # (G, V)
-            present = w_new > 0.0
-            if not present.any():
-                continue
-            c_new = acc.centre[sl, :, k]  # (G, 2, V)
-            d1 = np.abs(c[:, :, 0] - c_new[:, None, 0]) / dgamma[0]  # (G, K, V)
-            da = np.abs(c[:, :, 1] - c_new[:, None, 1])
-            da = np.where(da > math.pi, 2.0 * math.pi - da, da)
-            d = np.maximum(d1, da / dgamma[1])
-            free = w == 0.0
-            match = (d <= tol) & ~free
-            first_match = np.where(match.any(axis=1), match.argmax(axis=1), -1)
-            first_free = np.where(free.any(axis=1), free.argmax(axis=1), -1)
-            nearest = np.where(free, np.inf, d).argmin(axis=1)
-            # the kernel's order: slots are scanned in order, a free slot ends the scan (slots fill in order)
-            scan_end = np.where(first_free >= 0, first_free, n_k)
-            target = np.where((first_match >= 0) & (first_match < scan_end), first_match,
-                              np.where(first_free >= 0, first_free, nearest))  # fmt: skip
-            g_ix, v_ix = np.nonzero(present)
-            t_ix = target[g_ix, v_ix]
-            newly = w[g_ix, t_ix, v_ix] == 0.0
-            c[g_ix[newly], t_ix[newly], :, v_ix[newly]] = c_new[g_ix[newly], :, v_ix[newly]]
-            w[g_ix, t_ix, v_ix] += w_new[g_ix, v_ix]
-            if coh:
-                s[g_ix, t_ix, :, v_ix] += acc.s_re[sl, g_ix, k, :, v_ix] + 1j * acc.s_im[sl, g_ix, k, :, v_ix]
-            if inc:
-                e[g_ix, t_ix, :, v_ix] += acc.energy[sl, g_ix, k, :, v_ix]
-    return s, e, w, c
-
-
-def _normalised(acc: BeamAcc, bgrid: BeamGrid, mode: int) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray]:
-    """Slots merged, branches normalised and summed per group: (p (G, F, V) or None, energy (G, F, V) or None,
-    weight (V,) the largest branch weight).
-
-    BEAM_SEMICOHERENT storage (receivers) returns the coherent sums *and* the energy sums of all groups; the
-    field's semicoherent mode is formed by the caller from the split returned here."""
-    s, e, weight, _ = _merge_slots(acc, bgrid.dgamma, bgrid.branch_tol)  # weight (G, K, V)
+    BEAM_SEMICOHERENT storage (receivers) returns the coherent sum over all groups *and* the energy sum over
+    all groups; the field's semicoherent mode is formed by the caller from the split returned here."""
+    weight = acc.weight.sum(axis=0)  # (G, V)
     # a deficit (0.5 <= W < 1: neighbours already reflected) is repaired, below 0.5 the field fades; W > 1
     # (overlapping bundles: facets of a terrain, widths floored at a caustic) is a sum of arrivals, kept
     norm = 1.0 / np.clip(weight, W_FLOOR, 1.0)
     p = None
     energy = None
     if mode != BEAM_INCOHERENT:
-        p = (s * norm[:, :, None, :]).sum(axis=1)  # (G, F, V)
+        p = (acc.s_re.sum(axis=0) + 1j * acc.s_im.sum(axis=0)) * norm[:, None, :]  # (G, F, V)
     if mode != BEAM_COHERENT:
-        energy = (e * norm[:, :, None, :]).sum(axis=1)
-    return p, energy, weight.max(axis=(0, 1))
+        energy = acc.energy.sum(axis=0) * norm[:, None, :]
+    return p, energy, weight.max(axis=0)
 
 
 @dataclass
@@ -240,7 +190,7 @@ class BeamBuffers:
         powered = np.any(power > 0)
         if self.grid is not None:
             grid = self.grid
-            p_g, e_g, weight = _normalised(self.acc, self.bgrid, self.bgrid.mode)
+            p_g, e_g, weight = _normalised(self.acc, self.bgrid.n_refl, self.bgrid.mode)
             p = None
             energy = None
             if self.bgrid.mode == BEAM_COHERENT:
@@ -267,7 +217,7 @@ class BeamBuffers:
                 powered=rel * (power[:, None] / (4.0 * math.pi)) if powered else None,
             )
         if self.points.xyz.shape[0]:
-            p_g, e_g, weight = _normalised(self.p_acc, self.pgrid, BEAM_SEMICOHERENT)
+            p_g, e_g, weight = _normalised(self.p_acc, self.pgrid.n_refl, BEAM_SEMICOHERENT)
             assert p_g is not None and e_g is not None
             p = p_g.sum(axis=0)
             energy = e_g.sum(axis=0)
@@ -352,7 +302,6 @@ def beam_grid(
         float(w_min),
         int(min(max(max_reflections, 0), MAX_REFLECTION_GROUPS - 1) + 1),
         BEAM_MODES[mode],
-        BRANCH_TOL,
     )
 
 
@@ -387,7 +336,6 @@ def no_beam_args(n_f: int = 1) -> tuple[BeamGrid, BeamAcc, BeamTables, BeamGrid,
         1.0,
         1,
         BEAM_OFF,
-        BRANCH_TOL,
     )
     t = BeamTables(np.zeros((1, n_f, 2, 2, 2)), np.zeros(5), np.zeros(n_f), 1.0)
     return g, _empty_acc(), t, g, _empty_acc(), bin_points(np.zeros((0, 3)))

@@ -62,13 +62,7 @@ BEAM_MODES = {"coherent": BEAM_COHERENT, "incoherent": BEAM_INCOHERENT, "semicoh
 # Caustic-count classes kept apart (0, 1, >= 2 caustics): two branches of one reflection count that meet
 # at a point are separated by a fold, so they differ in their caustic count.
 N_KMAH = 3
-# Branches kept apart inside a group: each contribution estimates the launch angles of the point's own ray
-# in its bundle, gamma_hat = gamma_ray + dgamma; contributions whose gamma_hat lie within BRANCH_TOL launch
-# steps (in both angles) of a branch slot's centre (the gamma_hat of its first contribution) share it. Up
-# to N_BRANCH branches per point and group; a further one joins the slot with the nearest centre.
-N_BRANCH = 4
-BRANCH_TOL = 1.5
-# Divide each branch's sum by clip(sum of hat weights, W_FLOOR, 1): a point with at least half of a full
+# Divide each group's sum by max(sum of hat weights, W_FLOOR): a point with at least half of a full
 # partition of unity is normalised; below that the field fades linearly (fan edges, shadow boundaries).
 W_FLOOR = 0.5
 # The caustic floor of a beam's width is at most this fraction of the width of an unfocused tube at the
@@ -86,7 +80,6 @@ class BeamGrid(NamedTuple):
     dgamma : (2,) launch steps (elevation, azimuth) in rad; w_min : smallest beam half-width, m.
     n_refl : number of reflection-count groups (the last one holds all higher counts).
     mode : BEAM_COHERENT | BEAM_INCOHERENT | BEAM_SEMICOHERENT.
-    branch_tol : launch steps within which two contributions' gamma_hat belong to one branch (BRANCH_TOL).
     """
 
     origin: np.ndarray
@@ -99,17 +92,14 @@ class BeamGrid(NamedTuple):
     w_min: float
     n_refl: int
     mode: int
-    branch_tol: float
 
 
 class BeamAcc(NamedTuple):
-    """Per-slot accumulators; V = number of field points, G = n_refl * N_KMAH groups, K = N_BRANCH branch
-    slots per group, F bands.
+    """Per-slot accumulators; V = number of field points, G = n_refl * N_KMAH groups, F bands.
 
-    s_re, s_im : (slots, G, K, F, V) sum of w A exp(i omega tau) (size 0 in incoherent mode).
-    energy : (slots, G, K, F, V) sum of w I / I_1m (size 0 in coherent mode).
-    weight : (slots, G, K, V) sum of hat weights w (0: the branch slot is free).
-    centre : (slots, G, K, 2, V) the branch's launch angles (el, az; rad): gamma_hat of its first contribution.
+    s_re, s_im : (slots, G, F, V) sum of w A exp(i omega tau) (size 0 in incoherent mode).
+    energy : (slots, G, F, V) sum of w I / I_1m (size 0 in coherent mode).
+    weight : (slots, G, V) sum of hat weights w.
     hits : (slots, V) number of beam contributions (diagnostics: a point no beam reached has 0).
     """
 
@@ -117,7 +107,6 @@ class BeamAcc(NamedTuple):
     s_im: np.ndarray
     energy: np.ndarray
     weight: np.ndarray
-    centre: np.ndarray
     hits: np.ndarray
 
 
@@ -264,39 +253,10 @@ def _turn(re, im, kmah):
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
-def _branch_slot(acc, slot, group, v, gh1, gh2, grid):
-    """The branch slot of a contribution whose point has launch angles (gh1, gh2) (rad) in its bundle: the
-    first slot whose centre lies within grid.branch_tol launch steps in both angles, else the first free slot
-    (its centre is set), else the slot with the nearest centre (in launch steps, azimuth wrapped). The number
-    of slots is the accumulators' (acc.weight.shape[2])."""
-    dg1 = grid.dgamma[0]
-    dg2 = grid.dgamma[1]
-    best = 0
-    best_d = 1e300
-    for b in range(acc.weight.shape[2]):
-        if acc.weight[slot, group, b, v] == 0.0:
-            acc.centre[slot, group, b, 0, v] = gh1
-            acc.centre[slot, group, b, 1, v] = gh2
-            return b
-        d1 = abs(acc.centre[slot, group, b, 0, v] - gh1) / dg1
-        da = abs(acc.centre[slot, group, b, 1, v] - gh2)
-        if da > math.pi:
-            da = 2.0 * math.pi - da
-        d = max(d1, da / dg2)
-        if d <= grid.branch_tol:
-            return b
-        if d < best_d:
-            best_d = d
-            best = b
-    return best
-
-
-@nb.njit(inline="always", **NJIT_FLAGS)
 def _point_beam(grid, acc, slot, chord, px, py, pz, v, scratch):
     """The beam of ``chord`` (see :func:`deposit_chord`) at point (px, py, pz), accumulated into point v of
     ``acc``; False if it does not own the point or its hat weight is zero. scratch : (15,) work array."""
-    sa, sb, amp_a, amp_b, group, kmah, launch = chord
-    launch_cos = launch[2]
+    sa, sb, amp_a, amp_b, group, kmah, launch_cos = chord
     da = (px - sa[S_X]) * sa[S_T] + (py - sa[S_X + 1]) * sa[S_T + 1] + (pz - sa[S_X + 2]) * sa[S_T + 2]
     if da < 0.0:
         return False
@@ -341,15 +301,14 @@ def _point_beam(grid, acc, slot, chord, px, py, pz, v, scratch):
         return False
     w = h1 * h2
     rel_i = launch_cos / (a11 * a22)
-    br = _branch_slot(acc, slot, group, v, launch[0] + g1, launch[1] + g2, grid)
-    acc.weight[slot, group, br, v] += w
+    acc.weight[slot, group, v] += w
     acc.hits[slot, v] += 1.0
     n_f = grid.omega.shape[0]
     if grid.mode != BEAM_COHERENT:
         for f in range(n_f):
             re = v_ * amp_a[0, f] + u * amp_b[0, f]
             im = v_ * amp_a[1, f] + u * amp_b[1, f]
-            acc.energy[slot, group, br, f, v] += w * rel_i * (re * re + im * im)
+            acc.energy[slot, group, f, v] += w * rel_i * (re * re + im * im)
     if grid.mode != BEAM_INCOHERENT:
         # travel time to the point: foot time, along-tangent offset, wavefront curvature
         pd0 = 0.0
@@ -368,8 +327,8 @@ def _point_beam(grid, acc, slot, chord, px, py, pz, v, scratch):
             ph = grid.omega[f] * tau
             cph = math.cos(ph)
             sph = math.sin(ph)
-            acc.s_re[slot, group, br, f, v] += amp * (re * cph - im * sph)
-            acc.s_im[slot, group, br, f, v] += amp * (re * sph + im * cph)
+            acc.s_re[slot, group, f, v] += amp * (re * cph - im * sph)
+            acc.s_im[slot, group, f, v] += amp * (re * sph + im * cph)
     return True
 
 
@@ -377,12 +336,11 @@ def _point_beam(grid, acc, slot, chord, px, py, pz, v, scratch):
 def deposit_chord(grid, acc, slot, chord):
     """Add the beam of the chord from sample ``sa`` to sample ``sb`` to every grid point it owns.
 
-    chord : tuple (sa, sb, amp_a, amp_b, group, kmah, launch): sa, sb (SAMPLE_SIZE,) sample records;
+    chord : tuple (sa, sb, amp_a, amp_b, group, kmah, launch_cos): sa, sb (SAMPLE_SIZE,) sample records;
     amp_a, amp_b (2, F) complex amplitude factor per band at the two samples (reflection coefficients,
     absorption; re in row 0, im in row 1); group, the arrival group of the chord; kmah, caustics passed
-    (the amplitude turns by (-i)^kmah, time factor exp(-i w t)); launch (3,): the ray's launch elevation and
-    azimuth (rad; the branch key) and cos(launch elevation) (I / I_1m = launch_cos / J). Returns the number
-    of grid points that received a contribution.
+    (the amplitude turns by (-i)^kmah, time factor exp(-i w t)); launch_cos, cos(launch elevation)
+    (I / I_1m = launch_cos / J). Returns the number of grid points that received a contribution.
     """
     sa = chord[0]
     sb = chord[1]
@@ -472,8 +430,7 @@ class BeamRay(NamedTuple):
 
     last, cur : (SAMPLE_SIZE,); amp_last, amp_cur : (2, F); amp0 : (F,) the ray's own amplitude factor
     (the source's directivity toward its launch direction; ones for an omnidirectional source); ist : (3,) int64 =
-    [has a last sample, caustics passed (kmah), sign of the last non-zero det[X1, X2, T] (+1/-1/0)];
-    launch : (3,) launch elevation, azimuth (rad, from the tangent of the first sample) and cos(elevation).
+    [has a last sample, caustics passed (kmah), sign of the last non-zero det[X1, X2, T] (+1/-1/0)].
     """
 
     last: np.ndarray
@@ -482,7 +439,6 @@ class BeamRay(NamedTuple):
     amp_cur: np.ndarray
     ist: np.ndarray
     amp0: np.ndarray
-    launch: np.ndarray
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -494,7 +450,6 @@ def new_ray(n_f):
         np.zeros((2, n_f)),
         np.zeros(3, np.int64),
         np.ones(n_f),
-        np.zeros(3),
     )
 
 
@@ -542,10 +497,6 @@ def ray_sample(beam, slot, ray, x, tangent, time, arc, slow, par, refl, start_ne
     """
     n_refl, refl_cos, refl_mat, launch_cos = refl
     cur = ray.cur
-    if ray.ist[0] == 0:  # the launch sample: the tangent is the launch direction
-        ray.launch[0] = math.asin(min(max(tangent[2], -1.0), 1.0))
-        ray.launch[1] = math.atan2(tangent[1], tangent[0])
-        ray.launch[2] = launch_cos
     for i in range(3):
         cur[S_X + i] = x[i]
         cur[S_T + i] = tangent[i]
@@ -574,11 +525,11 @@ def ray_sample(beam, slot, ray, x, tangent, time, arc, slow, par, refl, start_ne
         grid = beam.grid
         if grid.mode != BEAM_OFF:
             group = chord_group(grid.n_refl, n_refl, kmah)
-            chord = (ray.last, cur, ray.amp_last, ray.amp_cur, group, kmah, ray.launch)
+            chord = (ray.last, cur, ray.amp_last, ray.amp_cur, group, kmah, launch_cos)
             reached = deposit_chord(grid, beam.acc, slot, chord)
         if beam.pts.xyz.shape[0] > 0:
             group = chord_group(beam.p_grid.n_refl, n_refl, kmah)
-            chord = (ray.last, cur, ray.amp_last, ray.amp_cur, group, kmah, ray.launch)
+            chord = (ray.last, cur, ray.amp_last, ray.amp_cur, group, kmah, launch_cos)
             reached += deposit_points(beam.p_grid, beam.p_acc, beam.pts, slot, chord)
     for i in range(SAMPLE_SIZE):
         ray.last[i] = cur[i]
