@@ -150,11 +150,13 @@ def test_downward_beams_are_ray_theory():
     incoherent sums over the eigenrays at the same receivers (Newton-refined, docs/physics.md §12), so the gap
     is ray theory's own (low-angle rays turning 2-20 m above the ground, inside the Airy transition length
     near a turning point, about 5 m at 100 Hz), not the beams' per-group bookkeeping. Measured (log, b = +1,
-    100 Hz, 24 ranges 60-980 m): beams - eigenrays 0.24 dB mean (max 0.70) coherent, 0.14 dB incoherent;
-    eigenrays - GFPE 4.8 dB mean (ray theory 4.4 dB too loud on average, 10 dB at 800 m)."""
+    100 Hz, 24 ranges 60-980 m): beams - eigenrays 0.24 dB mean (max 0.70) coherent, 0.14 dB incoherent
+    (the six ranges here: 0.28 dB mean, max 0.70, coherent); eigenrays - GFPE 4.8 dB mean (ray theory 4.4 dB
+    too loud on average, about 10 dB near 800 m). About 3 minutes (7,201 bracket rays per receiver)."""
     rows = _beams_and_eigenrays("log_down", 100.0)
     coh = np.array([abs(r["tl_coh_100hz"] - r["tl_eig_coh_100hz"]) for r in rows])
     inc = np.array([abs(r["tl_inc_100hz"] - r["tl_eig_inc_100hz"]) for r in rows])
-    assert all(r["eigenray_failures"] == 0 and r["eigenrays"] >= 4 for r in rows), rows
+    assert all(r["eigenray_failures"] == 0 and r["eigenrays"] >= 2 for r in rows), rows
+    assert rows[-1]["eigenrays"] >= 20, rows[-1]  # the multi-bounce arrivals at 940 m (30 measured)
     assert coh.mean() <= 0.5 and coh.max() <= 1.0, coh
     assert inc.mean() <= 0.3, inc
