@@ -8,9 +8,17 @@ has no level; diffraction into shadows is a later stage) and not in an interfere
 (more than 6 dB below its running median over 50 m). Asserted: mean |difference| <= 1 dB at 100 and 500
 Hz. Measured with 1,201 rays (mean |difference| over the compared points): upward log 0.66 dB at 100 Hz
 (29 lit points, 20-76 m) and 4.3 dB at 500 Hz; upward linear 0.55 dB at 100 Hz and 7.8 dB at 500 Hz;
-downward log 5.2 / 2.2 dB and downward linear 3.3 / 4.3 dB at 100 / 500 Hz. The cases that do not meet
-1 dB are strict xfails: the target is not reached yet (open in issue 12: the per-group sums where several
-branches of one reflection and caustic count overlap, beam_weight 5-25 at 200 m - 1 km downward).
+downward log 5.2 / 2.2 dB and downward linear 3.3 / 4.3 dB at 100 / 500 Hz (re-measured 2026-12-02, all
+eight: log up 0.66 / 4.32, log down 5.15 / 2.15, linear up 0.52 / 8.71 (100 compared points), linear down
+3.28 / 4.34 dB). The cases that do not meet 1 dB are strict xfails: the target is not reached
+(open in issue 12). Downward, the beams are too loud at long range (log, 100 Hz: TL_beams - TL_GFPE = -3.5 /
+-5.3 / -8.4 dB at 200-400 / 400-700 / 700-1000 m), and so is exact ray theory:
+test_downward_beams_are_ray_theory checks the beams against the eigenray sums at the same receivers (0.24 dB
+mean coherent at 100 Hz), while the eigenrays themselves miss the GFPE by 4.8 dB (100 Hz) and 1.8 dB (500 Hz)
+over 60-980 m. The beam_weight of 5-25 there is several branches lumped in one group and summed (W > 1 is not
+divided); a per-branch normalisation was measured and did not help (5.24 dB at 100 Hz; docs/physics.md §11).
+The gap is ray theory's in a duct thinner than its Airy transition length (about 5 m at 100 Hz): a wave
+treatment is needed, not another beam sum.
 """
 
 from __future__ import annotations
@@ -96,3 +104,60 @@ def test_beams_match_gfpe_outside_shadows(name, f):
     res = _compare(name, f)
     assert res["compared"] >= 20, res  # upward refraction: the lit zone is short (29 points for log, b = -1)
     assert res["mean_db"] <= 1.0, res
+
+
+EIG_RANGES = (140.0, 300.0, 460.0, 620.0, 780.0, 940.0)
+
+
+@cache
+def _beams_and_eigenrays(name: str, f: float):
+    """The same job with receivers at EIG_RANGES (1.5 m) and a fine eigenray bracket (7,201 elevations: the
+    default 721 misses the grazing multi-bounce arrivals, 16 of 24 at 800 m)."""
+    spec, _ = PROFILES[name]
+    job = Job.model_validate(
+        {
+            "name": f"eig-{name}",
+            "scene": {
+                "domain": {"min": [-20, -20, 0], "max": [1020, 20, 300]},
+                "ground": {"kind": "flat", "flow_resistivity": GRASS},
+            },
+            "profile": spec,
+            "sources": [{"position": [0.0, 0.0, ZS]}],
+            "rays": {
+                "elevation_deg": {"min": -30.0, "max": 30.0, "count": 1201},
+                "azimuth_deg": {"min": 0.0, "max": 0.0, "count": 1},
+                "max_time_s": 3.2,
+                "max_reflections": 8,
+            },
+            "field": {
+                "origin": [XS[0], 0.0, ZR],
+                "spacing": [2.0, 1.0, 1.0],
+                "shape": [XS.size, 1, 1],
+                "frequencies_hz": [f],
+                "absorption": False,
+                "mode": "coherent",
+            },
+            "receivers": [{"id": f"r{int(x)}", "position": [x, 0.0, ZR]} for x in EIG_RANGES],
+            "eigenrays": {"enabled": "on", "elevations": 7201},
+            "outputs": ["field", "report"],
+        }
+    )
+    return run_job(job).receivers.rows
+
+
+@pytest.mark.slow
+def test_downward_beams_are_ray_theory():
+    """Where the beams miss the GFPE downward, they still agree with exact ray theory: the coherent and
+    incoherent sums over the eigenrays at the same receivers (Newton-refined, docs/physics.md §12), so the gap
+    is ray theory's own (low-angle rays turning 2-20 m above the ground, inside the Airy transition length
+    near a turning point, about 5 m at 100 Hz), not the beams' per-group bookkeeping. Measured (log, b = +1,
+    100 Hz, 24 ranges 60-980 m): beams - eigenrays 0.24 dB mean (max 0.70) coherent, 0.14 dB incoherent
+    (the six ranges here: 0.28 dB mean, max 0.70, coherent); eigenrays - GFPE 4.8 dB mean (ray theory 4.4 dB
+    too loud on average, about 10 dB near 800 m). About 3 minutes (7,201 bracket rays per receiver)."""
+    rows = _beams_and_eigenrays("log_down", 100.0)
+    coh = np.array([abs(r["tl_coh_100hz"] - r["tl_eig_coh_100hz"]) for r in rows])
+    inc = np.array([abs(r["tl_inc_100hz"] - r["tl_eig_inc_100hz"]) for r in rows])
+    assert all(r["eigenray_failures"] == 0 and r["eigenrays"] >= 2 for r in rows), rows
+    assert rows[-1]["eigenrays"] >= 20, rows[-1]  # the multi-bounce arrivals at 940 m (30 measured)
+    assert coh.mean() <= 0.5 and coh.max() <= 1.0, coh
+    assert inc.mean() <= 0.3, inc
