@@ -127,6 +127,7 @@ def _creeping_energy(
     zr: np.ndarray,
     flow_resistivity: float | None,
     n_modes: int,
+    top_layers: float = _TOP_LAYERS,
 ) -> tuple[np.ndarray, str]:
     """|p|^2 of the creeping wave at (r, zr) (all in the shadow) and the method used."""
     z_imp = _impedance(f, flow_resistivity)
@@ -135,7 +136,7 @@ def _creeping_energy(
     if math.isfinite(a_guess) and a_guess > 0:
         k0 = 2.0 * math.pi * f / c0
         delta = 1.0188 / (k0 * k0 * a_guess) ** (1.0 / 3.0)
-        z_top = _TOP_LAYERS * delta
+        z_top = top_layers * delta
         n_grid = int(max(401, 2 * math.ceil(20.0 * z_top / delta) + 1))
         try:
             modes = profile_modes(
@@ -170,6 +171,7 @@ def refractive_shadow_energy(
     *,
     azimuth_bin_deg: float = 5.0,
     n_modes: int = 12,
+    top_layers: float = _TOP_LAYERS,
 ) -> ShadowField:
     """Creeping-wave and scattered energy in the refractive shadow (module docstring).
 
@@ -179,7 +181,9 @@ def refractive_shadow_energy(
     frequencies_hz (n_f,); turbulence: (C_T^2 in K^2 m^-2/3, C_v^2 in m^4/3 s^-2) or None (no
     scattering); wind: the kernel form (code, params) or None; azimuth_bin_deg: with wind, points are
     grouped by azimuth in bins this wide (each bin one profile and one set of modes); n_modes: residue-
-    series terms. Cost: one mode solve per (bin, frequency), about 0.1-5 s each on one core.
+    series terms; top_layers: height of the Numerov grid (and cap of each mode's tail height) in creeping-
+    layer thicknesses delta (a numerical parameter the result should not depend on, and at 500 Hz and
+    above does: docs/physics.md §15). Cost: one mode solve per (bin, frequency), 0.3-25 s each on one core.
     """
     src = np.asarray(source_xyz, float).reshape(3)
     pts = np.asarray(points_xyz, float).reshape(-1, 3)
@@ -225,7 +229,7 @@ def refractive_shadow_energy(
             continue
         for k, f in enumerate(freqs):
             energy, method = _creeping_energy(
-                c_of_h, ray, float(f), zs, r[idx], zr[idx], flow_resistivity_pa_s_m2, n_modes
+                c_of_h, ray, float(f), zs, r[idx], zr[idx], flow_resistivity_pa_s_m2, n_modes, top_layers
             )
             creeping[k, idx] = energy
             if first:

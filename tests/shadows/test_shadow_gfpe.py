@@ -113,3 +113,22 @@ def test_turbulence_adds_scattered_energy_in_the_shadow_only():
     np.testing.assert_allclose(sf.creeping, plain.creeping)
     assert np.all(sf.scattered[:, ~sf.applies] == 0.0) and np.all(sf.scattered[:, sf.applies] > 0.0)
     np.testing.assert_allclose(sf.energy_rel, sf.creeping + sf.scattered)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("f", [100.0, 500.0])
+@pytest.mark.xfail(strict=True, reason="the level depends on the Numerov grid height (docs/physics.md §15, open)")
+def test_shadow_level_does_not_depend_on_the_grid_height(f):
+    """The level in the shadow must not move by more than 0.5 dB when the grid top (top_layers, in creeping-
+    layer thicknesses) moves over 6-10. Measured (log b = -1, receiver 1.5 m, the GFPE-compared points):
+    100 Hz mean / max change re 8: 0.63 / 1.35 dB at 6, 8.6 / 15.0 dB at 10, 15.7 / 24.6 dB at 12 (and
+    0.31, 0.43, 8.7, 15.9 dB mean off the GFPE at 6 / 8 / 10 / 12)."""
+    prof = PROFILES["log_up"][0]
+    ref = _gfpe("log_up", f)
+    tls = []
+    for top in (6.0, 8.0, 10.0):
+        sf = refractive_shadow_energy(prof, [0.0, 0.0, ZS], POINTS, np.zeros(XS.size), 0.0, GRASS, [f], top_layers=top)
+        tls.append(-10.0 * np.log10(np.where(sf.applies, sf.creeping[0], np.nan)))
+    ok = np.isfinite(tls[1]) & (ref <= 20.0 * np.log10(XS) + 80.0)
+    change = max(float(np.max(np.abs(t - tls[1])[ok])) for t in tls)
+    assert change < 0.5, change
