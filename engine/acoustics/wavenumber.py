@@ -44,7 +44,7 @@ __all__ = ["FfpField", "POINTS_PER_WAVELENGTH", "ffp_cells", "ffp_field"]
 
 POINTS_PER_WAVELENGTH = 12.0  # Numerov height step lambda / 12
 PERIOD_FACTOR = 4.0  # FFT period / largest range
-EPS_PERIOD = 5.0  # contour offset x period; at 3 / 5 / 10 / 20 the deepest compared 1 kHz level is 122.0 / 121.8 / 121.2 / 136 dB
+EPS_PERIOD = 5.0  # contour offset x period (3 / 5 / 10 / 20: deepest 1 kHz level 122.0 / 121.8 / 121.2 / 136 dB)
 LAYER_STRENGTH = 1.0  # absorbing layer: k^2 (1 + i A u^2), u = 0..1 over the layer
 _RESCALE_EVERY = 40  # rows between renormalisations of phi_> above the stored heights
 
@@ -132,7 +132,7 @@ def ffp_field(
     js = int(round(zs / h))
     jr = np.floor(zr / h).astype(int)
     need = sorted({js + o for o in range(-2, 3)} | {int(j) + o for j in jr for o in range(-1, 4)})
-    need = [j for j in need if j >= 0]
+    need = [j for j in need if j >= 0] + [0, 1, 2]
     j_hi = max(need) + 2
     cc = h * h / 12.0
     # phi_< up from the ground (Taylor start to 4th order, then Numerov)
@@ -156,7 +156,7 @@ def ffp_field(
     p_next = np.zeros(n_k, complex)
     p_cur = np.ones(n_k, complex)
     j = n - 2
-    lo = min(need)
+    lo = 0
     while j > lo:
         p_prev = (2.0 * (1.0 - 5.0 * cc * (k2[j] - kap2)) * p_cur - (1.0 + cc * (k2[j + 1] - kap2)) * p_next) / (
             1.0 + cc * (k2[j - 1] - kap2)
@@ -168,12 +168,12 @@ def ffp_field(
         elif j % _RESCALE_EVERY == 0:
             s = np.abs(p_cur) + 1e-300
             p_cur, p_next = p_cur / s, p_next / s
-    if js < 2:  # a source at the ground: one-sided derivative from the start values
-        d_up = np.full(n_k, -1j * beta)
-        d_dn = (-3.0 * dn[js] + 4.0 * dn[js + 1] - dn[js + 2]) / (2.0 * h) if js == 0 else None
-        if d_dn is None:
-            d_dn = (dn[js + 1] - dn[js - 1]) / (2.0 * h)
-            d_up = (up[js + 1] - up[js - 1]) / (2.0 * h)
+    if js == 0:  # a source on the ground: the ground condition and a one-sided difference
+        d_up = np.full(n_k, -1j * beta, complex)
+        d_dn = (-3.0 * dn[0] + 4.0 * dn[1] - dn[2]) / (2.0 * h)
+    elif js == 1:
+        d_up = (up[2] - up[0]) / (2.0 * h)
+        d_dn = (dn[2] - dn[0]) / (2.0 * h)
     else:
         d_up = (-up[js + 2] + 8.0 * up[js + 1] - 8.0 * up[js - 1] + up[js - 2]) / (12.0 * h)
         d_dn = (-dn[js + 2] + 8.0 * dn[js + 1] - 8.0 * dn[js - 1] + dn[js - 2]) / (12.0 * h)
