@@ -33,7 +33,7 @@ from bentray.engine.acoustics.weighting import a_weighting_db
 from bentray.engine.diffraction.stage import _field_points, _ground
 from bentray.engine.field_sources import COMBINATION, NONE, REFRACTIVE_SHADOW, Contribution, combine
 from bentray.engine.field_sources import counts as source_counts
-from bentray.scenes.cost import SHADOW_AUTO_MAX_SOLVES  # field.refractive_shadow "auto": at most this many solves
+from bentray.scenes.cost import SHADOW_AUTO_MAX_SECONDS, SHADOW_AUTO_MAX_SOLVES, shadow_cost
 
 __all__ = ["SHADOW_AUTO_MAX_SOLVES", "stage_refractive_shadow"]
 
@@ -206,10 +206,17 @@ def stage_refractive_shadow(
     if setting == "auto" and solves > SHADOW_AUTO_MAX_SOLVES:
         log.stages["refractive_shadow"] = (
             f"skipped: about {solves} wavenumber integrals (sources x bands x azimuth bins) is over the 'auto' "
-            f"limit of {SHADOW_AUTO_MAX_SOLVES} (~ f^2 x range x height each: 1 s at 100 Hz, 25-60 s at 1 kHz to "
-            "1 km); set field.refractive_shadow to 'on' to run it"
+            f"limit of {SHADOW_AUTO_MAX_SOLVES}; set field.refractive_shadow to 'on' to run it"
         )
         return None
+    if setting == "auto":
+        _, seconds = shadow_cost(job, apply_auto=False)
+        if seconds > SHADOW_AUTO_MAX_SECONDS:
+            log.stages["refractive_shadow"] = (
+                f"skipped: an estimated {seconds:.3g} s (~ f^2 x range x height per integral) is over the 'auto' "
+                f"limit of {SHADOW_AUTO_MAX_SECONDS:g} s; set field.refractive_shadow to 'on' to run it"
+            )
+            return None
     t0 = time.perf_counter()
     out: dict[str, Any] = {
         "method": "creeping waves (wavenumber integral of the source column's profile) + turbulent scattering",

@@ -69,6 +69,7 @@ __all__ = [
     "machine_memory_bytes",
     "mesh_problems",
     "records_paths",
+    "shadow_cost",
 ]
 
 PATH_SAMPLE_BYTES = 104  # measured, see the module docstring
@@ -90,7 +91,8 @@ DEFAULT_MESH_SECONDS = 600.0  # default budget of one job's mesh build (BENTRAY_
 # The refractive-shadow stage's wavenumber integral: measured 6.3e-8 s per cell (1 kHz, 1 km, 3.5e8 cells in
 # 21.8 s on a loaded core, 2026-12-02); rounded up.
 SHADOW_SECONDS_PER_CELL = 1e-7
-SHADOW_AUTO_MAX_SOLVES = 16  # engine/shadow_stage.py's 'auto' limit (kept equal there)
+SHADOW_AUTO_MAX_SOLVES = 16  # engine/shadow_stage.py's 'auto' limits: integrals ...
+SHADOW_AUTO_MAX_SECONDS = 600.0  # ... and estimated seconds (shadow_cost)
 DEFAULT_SHADOW_SECONDS = 1800.0  # budget of the refractive-shadow stage of one job
 # profile kinds that vary with z only (engine Profile.stratified): slabs, no 3D mesh, over flat ground
 _STRATIFIED_KINDS = (
@@ -209,7 +211,7 @@ def estimate_cost(job: Any, threads: int) -> CostEstimate:
         kept = runs * n_groups * (spec.n_points * (4 * len(spec.frequencies_hz) + 4) * 8 if spec is not None else 0)
         paths, field_bytes = paths * runs, field_bytes + kept
         deposits, steps, n_rays = deposits * runs, steps * runs, n_rays * runs
-    solves, seconds = _shadow_cost(job)
+    solves, seconds = shadow_cost(job)
     return CostEstimate(
         paths, int(field_bytes), n_rays * RAY_STATE_BYTES, float(deposits), float(steps), solves * runs, seconds * runs
     )
@@ -249,8 +251,10 @@ def _azimuth_bins(src_xy: tuple[float, float], xy: list[tuple[float, float, floa
     return min(len(bins), 72)
 
 
-def _shadow_cost(job: Any) -> tuple[int, float]:
-    """(wavenumber integrals, seconds) of the refractive-shadow stage (module docstring)."""
+def shadow_cost(job: Any, apply_auto: bool = True) -> tuple[int, float]:
+    """(wavenumber integrals, estimated seconds) of the refractive-shadow stage (module docstring); (0, 0)
+    where it will not run, including (``apply_auto``) 'auto' above SHADOW_AUTO_MAX_SOLVES or
+    SHADOW_AUTO_MAX_SECONDS."""
     from bentray.engine.acoustics.wavenumber import ffp_cells
 
     spec = job.field
@@ -275,7 +279,7 @@ def _shadow_cost(job: Any) -> tuple[int, float]:
         top = min(2000.0, 0.25 * r_max + 20.0)
         solves += bins * len(bands)
         seconds += bins * sum(ffp_cells(f, 340.0, 2.0, r_max, top) for f in bands) * SHADOW_SECONDS_PER_CELL
-    if setting == "auto" and solves > SHADOW_AUTO_MAX_SOLVES:
+    if apply_auto and setting == "auto" and (solves > SHADOW_AUTO_MAX_SOLVES or seconds > SHADOW_AUTO_MAX_SECONDS):
         return 0, 0.0
     return solves, seconds
 

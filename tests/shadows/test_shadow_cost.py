@@ -79,3 +79,25 @@ def test_an_expensive_on_stage_is_refused_naming_the_field():
     lines = cost_problems(job, CostLimits())
     assert any(line.startswith("field.refractive_shadow: ") and "216 wavenumber integrals" in line for line in lines)
     assert not any(line.startswith("field.refractive_shadow") for line in cost_problems(_job(), CostLimits()))
+
+
+def test_auto_skips_an_expensive_stage_and_the_stage_says_so():
+    from bentray.engine.run import run_job
+    from bentray.scenes.cost import SHADOW_AUTO_MAX_SECONDS, shadow_cost
+
+    spec = {
+        "name": "auto-seconds",
+        "scene": {"domain": {"min": [-20, -20, 0], "max": [3000, 20, 100]}},
+        "profile": {"kind": "log", "c0": 340.0, "b": -1.0, "z_g": 1.0},
+        "sources": [{"position": [0.0, 0.0, 2.0]}],
+        "rays": {"elevation_deg": {"min": -10, "max": 10, "count": 21}, "max_time_s": 0.5, "max_reflections": 1},
+        "field": {"origin": [2900, 0, 1.5], "spacing": [10, 1, 1], "shape": [2, 1, 1], "frequencies_hz": [4000]},
+        "outputs": ["field", "report"],
+    }
+    job = Job.model_validate(spec)
+    assert shadow_cost(job, apply_auto=False)[1] > SHADOW_AUTO_MAX_SECONDS  # 4 kHz to 2.9 km
+    assert shadow_cost(job) == (0, 0.0)
+    assert (
+        "s (~ f^2 x range x height per integral) is over the 'auto' limit"
+        in run_job(job).report["stages"]["refractive_shadow"]
+    )
