@@ -7,12 +7,13 @@ c = 340 - 0.1 z. Compared: the points ``refractive_shadow_energy`` marks as in t
 where the GFPE is above its floor (at most 80 dB below the free field; deeper, its absorbing layer's
 residual reflection sets the level). Asserted: mean and max |difference| <= 5 dB (the issue's bound); at
 1 kHz the mean over those points <= 1 dB and the bound over the points at most 75 dB below the free field
-(log 1 kHz: 0.19 / 1.48 dB over 97 points there; one point deeper, 78 dB down, is 5.57 dB apart). Measured with the wavenumber integral
-(engine/acoustics/wavenumber.py, 2026-12-02, this module's ``_shadow`` and ``_gfpe`` per case; mean / max
-|difference|, compared points): log 100 Hz 0.07 / 0.42 dB (462, to
+(log 1 kHz: 0.19 / 1.48 dB over 97 points there; one point deeper, 78 dB down, is 5.57 dB apart).
+Measured with the wavenumber integral (engine/acoustics/wavenumber.py, 2026-12-02, this module's
+``_shadow`` and ``_gfpe`` per case; mean / max |difference|, compared points): log 100 Hz 0.07 / 0.42 dB (462, to
 1 km), log 500 Hz 0.13 / 1.91 dB (193, to 462 m), log 1 kHz 0.35 / 5.57 dB (104, to 284 m; the max at the
 deepest point, 78 dB below the free field, where the GFPE is at its floor), linear 100 Hz 0.07 / 0.17 dB
-(392), linear 500 Hz 0.17 / 1.25 dB (263). The residue series this replaced: log 0.43 / 0.86, 2.41 / 3.54,
+(392), linear 500 Hz 0.17 / 1.25 dB (263), linear 1 kHz 0.50 / 6.05 dB (211; 0.29 / 3.24 dB over the 192
+above 75 dB down). The residue series this replaced: log 0.43 / 0.86, 2.41 / 3.54,
 21.2 / 28.7 dB, and its level moved by up to 25 dB with its grid height (docs/physics.md §15).
 The lit zone: ``applies`` is False exactly before the ray-theory shadow boundary (linear c: the grazing
 circle, closed form), every returned energy is 0 there, and a downward-refracting profile gets none.
