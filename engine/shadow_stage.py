@@ -1,5 +1,6 @@
 """The refractive-shadow stage: levels where upward refraction (or upwind propagation) leaves the ground
-in a ray-theory shadow, from creeping waves plus turbulent scattering
+in a ray-theory shadow, from the field diffracted along the ground (creeping waves, computed by the
+wavenumber integral of the source column's profile) plus turbulent scattering
 (:func:`bentray.engine.acoustics.refractive_shadow.refractive_shadow_energy`), merged into the field after
 the diffraction stage.
 
@@ -32,10 +33,11 @@ from bentray.engine.acoustics.weighting import a_weighting_db
 from bentray.engine.diffraction.stage import _field_points, _ground
 from bentray.engine.field_sources import COMBINATION, NONE, REFRACTIVE_SHADOW, Contribution, combine
 from bentray.engine.field_sources import counts as source_counts
-from bentray.scenes.cost import SHADOW_AUTO_MAX_SOLVES  # field.refractive_shadow "auto": at most this many solves
+from bentray.scenes.cost import SHADOW_AUTO_MAX_SECONDS, SHADOW_AUTO_MAX_SOLVES, shadow_cost
 
 __all__ = ["SHADOW_AUTO_MAX_SOLVES", "stage_refractive_shadow"]
 
+_LAST_RUN: dict[str, float] = {}  # the wavenumber integrals' top (m) and cells of the last energy call (report)
 _AZIMUTH_BIN_DEG = 5.0  # refractive_shadow_energy's default azimuth bin with wind
 _AZIMUTH_PROBES = 36  # directions tested for upward refraction when deciding whether the stage is needed
 
@@ -53,7 +55,7 @@ def _needed(job: Any, profile: Any, wind: Any, ground_z: Any) -> bool:
 
 
 def _mode_solves(job: Any, wind: Any, field_arrays: Any, setup: Any) -> int:
-    """Upper estimate of the stage's mode solves: per source, bands x the 5-degree azimuth bins the points
+    """Upper estimate of the stage's wavenumber integrals: per source, bands x the 5-degree azimuth bins the points
     cover (one bin without wind)."""
     pts = []
     if field_arrays is not None:
@@ -87,10 +89,13 @@ def _shadow_energy(
     turb = job.turbulence
     t = (float(turb.c_t2), float(turb.c_v2)) if turb is not None else None
     gz = ground_z(pts[:, :2])
+    _LAST_RUN.update(z_top_m=0.0, cells=0)
     for s, src in enumerate(job.sources):
         xyz = np.asarray(src.position, float)
         sg = float(ground_z(xyz[None, :2])[0])
         sf = refractive_shadow_energy(profile, xyz, pts, gz, sg, sigma, f_hz, t, wind)
+        _LAST_RUN["z_top_m"] = max(_LAST_RUN["z_top_m"], sf.z_top_m)
+        _LAST_RUN["cells"] += sf.cells
         rel += sf.energy_rel
         if powered is not None and powers is not None:
             powered += sf.energy_rel * (powers[s][:, None] / (4.0 * math.pi))
@@ -117,14 +122,21 @@ def _rel_of(arrays: dict[str, np.ndarray], labels: list[str]) -> np.ndarray:
     return np.where(np.isfinite(tl), 10.0 ** (-tl / 10.0), 0.0)
 
 
-def _apply_field(job: Any, profile: Any, wind: Any, surfaces: Any, setup: Any, field_arrays: Any) -> dict[str, Any]:
+Energy = tuple[np.ndarray, np.ndarray | None, np.ndarray]
+
+
+def _apply_field(
+    job: Any, profile: Any, wind: Any, surfaces: Any, setup: Any, field_arrays: Any, energy: Energy | None = None
+) -> dict[str, Any]:
     spec = job.field
     ground_z, sigma = _ground(job, surfaces)
     labels = list(spec.labels)
     f_hz = np.asarray(spec.frequencies_hz, float)
-    pts = _field_points(job, field_arrays, ground_z)
     solid = np.asarray(field_arrays.arrays["inside_solid"], bool).reshape(-1)
-    rel_new, powered, applies = _shadow_energy(job, profile, wind, pts, f_hz, ground_z, sigma, setup.powers)
+    if energy is None:
+        pts = _field_points(job, field_arrays, ground_z)
+        energy = _shadow_energy(job, profile, wind, pts, f_hz, ground_z, sigma, setup.powers)
+    rel_new, powered, applies = energy
     applies &= ~solid
     old_rel = _rel_of(field_arrays.arrays, labels)
     w = _weight(old_rel, rel_new, applies)
@@ -140,14 +152,18 @@ def _apply_field(job: Any, profile: Any, wind: Any, surfaces: Any, setup: Any, f
     return {"points_in_shadow": int(np.count_nonzero(applies)), "field_source": counts}
 
 
-def _apply_receivers(job: Any, profile: Any, wind: Any, surfaces: Any, setup: Any, receivers: Any) -> dict[str, Any]:
+def _apply_receivers(
+    job: Any, profile: Any, wind: Any, surfaces: Any, setup: Any, receivers: Any, energy: Energy | None = None
+) -> dict[str, Any]:
     from bentray.engine.field_sources import combine_receiver_rows
 
     ground_z, sigma = _ground(job, surfaces)
     f_hz = np.asarray(receivers.stats["frequencies_hz"], float)
     labels = [c[len("tl_inc_") : -2] for c in receivers.columns if c.startswith("tl_inc_")]
-    pts = np.asarray(setup.receivers_xyz, float)
-    rel_new, powered, applies = _shadow_energy(job, profile, wind, pts, f_hz, ground_z, sigma, setup.powers)
+    if energy is None:
+        pts = np.asarray(setup.receivers_xyz, float)
+        energy = _shadow_energy(job, profile, wind, pts, f_hz, ground_z, sigma, setup.powers)
+    rel_new, powered, applies = energy
     old_code = np.array([r.get("field_source", NONE) for r in receivers.rows], np.uint8)
     conts = []
     ws = []
@@ -189,20 +205,42 @@ def stage_refractive_shadow(
     solves = _mode_solves(job, wind, field_arrays, setup)
     if setting == "auto" and solves > SHADOW_AUTO_MAX_SOLVES:
         log.stages["refractive_shadow"] = (
-            f"skipped: about {solves} mode solves (sources x bands x azimuth bins) is over the 'auto' limit of "
-            f"{SHADOW_AUTO_MAX_SOLVES} (0.3-10 s each); set field.refractive_shadow to 'on' to run it"
+            f"skipped: about {solves} wavenumber integrals (sources x bands x azimuth bins) is over the 'auto' "
+            f"limit of {SHADOW_AUTO_MAX_SOLVES}; set field.refractive_shadow to 'on' to run it"
         )
         return None
+    if setting == "auto":
+        _, seconds = shadow_cost(job, apply_auto=False)
+        if seconds > SHADOW_AUTO_MAX_SECONDS:
+            log.stages["refractive_shadow"] = (
+                f"skipped: an estimated {seconds:.3g} s (~ f^2 x range x height per integral) is over the 'auto' "
+                f"limit of {SHADOW_AUTO_MAX_SECONDS:g} s; set field.refractive_shadow to 'on' to run it"
+            )
+            return None
     t0 = time.perf_counter()
     out: dict[str, Any] = {
-        "method": "creeping waves (residue series of the source column's profile) + turbulent scattering",
+        "method": "creeping waves (wavenumber integral of the source column's profile) + turbulent scattering",
         "turbulence": job.turbulence.model_dump() if job.turbulence is not None else None,
     }
+    with_rec = receivers is not None and setup.receivers_xyz is not None
+    e_field = e_rec = None
+    if field_arrays is not None and with_rec:
+        f_hz = np.asarray(job.field.frequencies_hz, float)
+        if np.array_equal(f_hz, np.asarray(receivers.stats["frequencies_hz"], float)):
+            # one wavenumber integral per band for the map and the receivers together
+            ground_z, sigma = _ground(job, surfaces)
+            pts = _field_points(job, field_arrays, ground_z)
+            n = pts.shape[0]
+            both = np.concatenate([pts, np.asarray(setup.receivers_xyz, float)])
+            rel, powered, applies = _shadow_energy(job, profile, wind, both, f_hz, ground_z, sigma, setup.powers)
+            e_field = (rel[:, :n], None if powered is None else powered[:, :n], applies[:n])
+            e_rec = (rel[:, n:], None if powered is None else powered[:, n:], applies[n:])
     if field_arrays is not None:
-        out["field"] = _apply_field(job, profile, wind, surfaces, setup, field_arrays)
-    if receivers is not None and setup.receivers_xyz is not None:
-        out["receivers"] = _apply_receivers(job, profile, wind, surfaces, setup, receivers)
+        out["field"] = _apply_field(job, profile, wind, surfaces, setup, field_arrays, e_field)
+    if with_rec:
+        out["receivers"] = _apply_receivers(job, profile, wind, surfaces, setup, receivers, e_rec)
     out["seconds"] = time.perf_counter() - t0
+    out["z_top_m"], out["cells"] = _LAST_RUN.get("z_top_m", 0.0), _LAST_RUN.get("cells", 0)
     log.timings["refractive_shadow"] = out["seconds"]
     n = out.get("field", {}).get("points_in_shadow", 0)
     log.stages["refractive_shadow"] = f"ran: {n} field points in a refractive shadow; creeping waves" + (

@@ -30,8 +30,11 @@ elementary operations, with the formula stated where it is computed:
   (lateral eigenrays) add one fan and its probes per wall the search takes for a pair (the same test,
   ``engine.eigenrays.wall_images``, over the inline footprints).
 - ``shadow_solves`` / ``shadow_seconds``: the refractive-shadow stage (engine/shadow_stage.py): one
-  creeping-wave mode solve per source, band and (with wind) 5-degree azimuth bin the field points and
-  receivers cover as seen from the source, x SHADOW_SECONDS_PER_SOLVE; 0 where no source can see
+  wavenumber integral per source, band and (with wind) 5-degree azimuth bin the field points and
+  receivers cover as seen from the source, each ``engine/acoustics/wavenumber.ffp_cells`` (heights x
+  wavenumbers, ~ f^2 x range x top height) x SHADOW_SECONDS_PER_CELL, with the range the farthest point
+  from the source and the top 0.25 x that range + 20 m (the log profile b = -1's limiting ray is 145 m
+  high at 1 km; capped at 2 km as in the stage); 0 where no source can see
   upward refraction from the job alone (no wind and a homogeneous or downward-refracting profile), with
   ``field.refractive_shadow`` "off", or with "auto" above the stage's own limit (it then skips itself).
 - ``mesh_seconds``: the media-mesh build (:func:`estimate_mesh`), ``cells x MESH_SECONDS_PER_CELL`` of
@@ -75,6 +78,7 @@ __all__ = [
     "machine_memory_bytes",
     "mesh_problems",
     "records_paths",
+    "shadow_cost",
 ]
 
 PATH_SAMPLE_BYTES = 104  # measured, see the module docstring
@@ -96,10 +100,11 @@ FCC_MAX_POINTS = 2_000_000  # engine/mesh/fcc.fcc_resample's max_points: more is
 # docstring) rounded up
 EIGENRAY_PROBES_PER_REFLECTION = 200
 DEFAULT_MESH_SECONDS = 600.0  # default budget of one job's mesh build (BENTRAY_MAX_MESH_SECONDS)
-# One refractive-shadow mode solve (creeping.profile_modes at 100-1000 Hz, 12 modes): 5-25 s on a loaded core
-# (README, "Turbulence and refractive shadows"); the upper end is the rate used.
-SHADOW_SECONDS_PER_SOLVE = 25.0
-SHADOW_AUTO_MAX_SOLVES = 16  # engine/shadow_stage.py's 'auto' limit (kept equal there)
+# The refractive-shadow stage's wavenumber integral: measured 6.3e-8 s per cell (1 kHz, 1 km, 3.5e8 cells in
+# 21.8 s on a loaded core, 2026-12-02); rounded up.
+SHADOW_SECONDS_PER_CELL = 1e-7
+SHADOW_AUTO_MAX_SOLVES = 16  # engine/shadow_stage.py's 'auto' limits: integrals ...
+SHADOW_AUTO_MAX_SECONDS = 600.0  # ... and estimated seconds (shadow_cost)
 DEFAULT_SHADOW_SECONDS = 1800.0  # budget of the refractive-shadow stage of one job
 # profile kinds that vary with z only (engine Profile.stratified): slabs, no 3D mesh, over flat ground
 _STRATIFIED_KINDS = (
@@ -164,10 +169,7 @@ class CostEstimate:
     ray_steps: float
     eigenray_steps: float = 0.0
     shadow_solves: int = 0
-
-    @property
-    def shadow_seconds(self) -> float:
-        return self.shadow_solves * SHADOW_SECONDS_PER_SOLVE
+    shadow_seconds: float = 0.0
 
     @property
     def memory_bytes(self) -> int:
@@ -224,7 +226,7 @@ def estimate_cost(job: Any, threads: int) -> CostEstimate:
         kept = runs * n_groups * (spec.n_points * (4 * len(spec.frequencies_hz) + 4) * 8 if spec is not None else 0)
         paths, field_bytes = paths * runs, field_bytes + kept
         deposits, steps, n_rays = deposits * runs, steps * runs, n_rays * runs
-    shadow = _shadow_solves(job) * runs
+    solves, seconds = shadow_cost(job)
     return CostEstimate(
         paths,
         int(field_bytes),
@@ -232,7 +234,8 @@ def estimate_cost(job: Any, threads: int) -> CostEstimate:
         float(deposits),
         float(steps),
         eigenray_steps=float(eigen_steps),
-        shadow_solves=shadow,
+        shadow_solves=solves * runs,
+        shadow_seconds=seconds * runs,
     )
 
 
@@ -314,26 +317,37 @@ def _azimuth_bins(src_xy: tuple[float, float], xy: list[tuple[float, float, floa
     return min(len(bins), 72)
 
 
-def _shadow_solves(job: Any) -> int:
-    """Mode solves of the refractive-shadow stage (module docstring)."""
+def shadow_cost(job: Any, apply_auto: bool = True) -> tuple[int, float]:
+    """(wavenumber integrals, estimated seconds) of the refractive-shadow stage (module docstring); (0, 0)
+    where it will not run, including (``apply_auto``) 'auto' above SHADOW_AUTO_MAX_SOLVES or
+    SHADOW_AUTO_MAX_SECONDS."""
+    from bentray.engine.acoustics.wavenumber import ffp_cells
+
     spec = job.field
     setting = getattr(spec, "refractive_shadow", "auto") if spec is not None else "auto"
     has_field = spec is not None and getattr(spec, "method", "voxels") == "beams"
     receivers = list(getattr(job, "receivers", None) or [])
     if setting == "off" or not (has_field or receivers) or not _may_refract_upward(job):
-        return 0
-    n_bands = len(spec.frequencies_hz) if spec is not None else 8
+        return 0, 0.0
+    bands = [float(f) for f in spec.frequencies_hz] if spec is not None else [63.0 * 2**i for i in range(8)]
     boxes = []
     if has_field:
         lo = spec.origin
         hi = [o + (n - 1) * d for o, n, d in zip(spec.origin, spec.shape, spec.spacing, strict=True)]
         boxes.append((lo[0], lo[1], hi[0], hi[1]))
     boxes += [(x, y, x, y) for x, y in (r.horizontal for r in receivers)]
-    total = 0
+    solves, seconds = 0, 0.0
     for src in job.sources:
-        bins = _azimuth_bins((float(src.position[0]), float(src.position[1])), boxes) if job.wind is not None else 1
-        total += bins * n_bands
-    return 0 if setting == "auto" and total > SHADOW_AUTO_MAX_SOLVES else total
+        sx, sy = float(src.position[0]), float(src.position[1])
+        bins = _azimuth_bins((sx, sy), boxes) if job.wind is not None else 1
+        r_max = max(math.hypot(x - sx, y - sy) for x0, y0, x1, y1 in boxes for x in (x0, x1) for y in (y0, y1))
+        r_max = max(r_max, 1.0) + 10.0
+        top = min(2000.0, 0.25 * r_max + 20.0)
+        solves += bins * len(bands)
+        seconds += bins * sum(ffp_cells(f, 340.0, 2.0, r_max, top) for f in bands) * SHADOW_SECONDS_PER_CELL
+    if apply_auto and setting == "auto" and (solves > SHADOW_AUTO_MAX_SOLVES or seconds > SHADOW_AUTO_MAX_SECONDS):
+        return 0, 0.0
+    return solves, seconds
 
 
 @dataclass(frozen=True)
@@ -608,10 +622,11 @@ def cost_problems(job: Any, limits: CostLimits, base_dir: str | Path | None = No
         )
     if est.shadow_seconds > limits.shadow_seconds:
         lines.append(
-            f"field.refractive_shadow: the refractive-shadow stage needs an estimated {est.shadow_solves} mode "
-            f"solves (sources x bands x 5-degree azimuth bins with wind), about {est.shadow_seconds:.3g} s at "
-            f"{SHADOW_SECONDS_PER_SOLVE:g} s each; the limit is {limits.shadow_seconds:g} s: use 'auto' (skips "
-            "the stage above its limit), 'off', fewer bands or fewer sources"
+            f"field.refractive_shadow: the refractive-shadow stage needs an estimated {est.shadow_solves} "
+            f"wavenumber integrals (sources x bands x 5-degree azimuth bins with wind), about "
+            f"{est.shadow_seconds:.3g} s (f^2 x range x top height cells at {SHADOW_SECONDS_PER_CELL:g} s each); "
+            f"the limit is {limits.shadow_seconds:g} s: use 'auto' (skips the stage above its limit), 'off', "
+            "fewer or lower bands, fewer sources or a smaller map"
         )
     lines.extend(mesh_problems(job, limits, base_dir))
     return lines

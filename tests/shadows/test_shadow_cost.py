@@ -1,4 +1,4 @@
-"""The refractive-shadow stage in the job cost estimate (scenes/cost.py): one mode solve per source, band and
+"""The refractive-shadow stage in the job cost estimate (scenes/cost.py): one wavenumber integral per source, band and
 (with wind) 5-degree azimuth bin, 0 where the job rules upward refraction out, 'auto' above the stage's own
 limit counted as skipped, and a budget line naming field.refractive_shadow when 'on' is too expensive."""
 
@@ -6,10 +6,12 @@ from __future__ import annotations
 
 import copy
 
+import numpy as np
 import pytest
 
+from bentray.engine.acoustics.wavenumber import ffp_cells
 from bentray.engine.shadow_stage import SHADOW_AUTO_MAX_SOLVES
-from bentray.scenes.cost import SHADOW_SECONDS_PER_SOLVE, CostLimits, cost_problems, estimate_cost
+from bentray.scenes.cost import SHADOW_SECONDS_PER_CELL, CostLimits, cost_problems, estimate_cost
 from bentray.scenes.schema import Job
 
 BANDS = [63, 125, 250, 500, 1000, 2000, 4000, 8000]
@@ -42,7 +44,10 @@ def _job(**changes) -> Job:
 )  # fmt: skip
 def test_solves_only_where_upward_refraction_is_possible(profile, solves):
     est = estimate_cost(_job(profile=profile), threads=2)
-    assert est.shadow_solves == solves and est.shadow_seconds == solves * SHADOW_SECONDS_PER_SOLVE
+    assert est.shadow_solves == solves
+    r_max = float(np.hypot(400.0, 400.0)) + 10.0  # the map's corner from the source
+    cells = ffp_cells(500.0, 340.0, 2.0, r_max, 0.25 * r_max + 20.0)
+    assert est.shadow_seconds == pytest.approx(solves * cells * SHADOW_SECONDS_PER_CELL)
 
 
 def test_bands_sources_and_wind_bins_multiply():
@@ -70,7 +75,29 @@ def test_auto_over_its_limit_and_off_cost_nothing():
 def test_an_expensive_on_stage_is_refused_naming_the_field():
     wind = {"kind": "log", "u_star": 0.5, "z_g": 0.1, "direction_deg": 0.0}
     job = _job(wind=wind, profile={"kind": "homogeneous"}, field__refractive_shadow="on",
-               field__frequencies_hz=[125, 500, 1000])  # fmt: skip
+               field__frequencies_hz=[500, 1000, 2000])  # fmt: skip
     lines = cost_problems(job, CostLimits())
-    assert any(line.startswith("field.refractive_shadow: ") and "216 mode solves" in line for line in lines), lines
+    assert any(line.startswith("field.refractive_shadow: ") and "216 wavenumber integrals" in line for line in lines)
     assert not any(line.startswith("field.refractive_shadow") for line in cost_problems(_job(), CostLimits()))
+
+
+def test_auto_skips_an_expensive_stage_and_the_stage_says_so():
+    from bentray.engine.run import run_job
+    from bentray.scenes.cost import SHADOW_AUTO_MAX_SECONDS, shadow_cost
+
+    spec = {
+        "name": "auto-seconds",
+        "scene": {"domain": {"min": [-20, -20, 0], "max": [3000, 20, 100]}},
+        "profile": {"kind": "log", "c0": 340.0, "b": -1.0, "z_g": 1.0},
+        "sources": [{"position": [0.0, 0.0, 2.0]}],
+        "rays": {"elevation_deg": {"min": -10, "max": 10, "count": 21}, "max_time_s": 0.5, "max_reflections": 1},
+        "field": {"origin": [2900, 0, 1.5], "spacing": [10, 1, 1], "shape": [2, 1, 1], "frequencies_hz": [4000]},
+        "outputs": ["field", "report"],
+    }
+    job = Job.model_validate(spec)
+    assert shadow_cost(job, apply_auto=False)[1] > SHADOW_AUTO_MAX_SECONDS  # 4 kHz to 2.9 km
+    assert shadow_cost(job) == (0, 0.0)
+    assert (
+        "s (~ f^2 x range x height per integral) is over the 'auto' limit"
+        in run_job(job).report["stages"]["refractive_shadow"]
+    )

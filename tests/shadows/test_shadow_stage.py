@@ -5,8 +5,9 @@ GFPE oracle (tests/reference/gfpe.py, checked by itself in tests/reference/test_
 Asserted: every field point gets a level; points past the limiting ray carry field_source 3 (refractive
 shadow) or 4 (combination); there the level is within 5 dB of the GFPE where the GFPE is above its floor
 (issue 13's must-show; 100 Hz in the default suite, 500 Hz slow); lit points keep the beam field
-(field_source 1). Measured 2026-12-02 (mean / max |difference|): 100 Hz 0.43 / 0.86 dB over 231 shadow
-points, 80 m - 1 km; 500 Hz 2.41 / 3.54 dB over the 96 of 231 shadow points above the GFPE's floor.
+(field_source 1). Measured 2026-12-02 with the wavenumber integral (mean / max |difference|): 100 Hz
+0.07 / 0.41 dB over 231 shadow points, 80 m - 1 km; 500 Hz 0.13 / 1.91 dB over the 96 of 231 shadow
+points above the GFPE's floor (the residue series before: 0.43 / 0.86 and 2.41 / 3.54 dB).
 """
 
 from __future__ import annotations

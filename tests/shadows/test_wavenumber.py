@@ -1,0 +1,45 @@
+"""The wavenumber integral (engine/acoustics/wavenumber.py) in homogeneous air, where the field is known
+exactly: the image source over rigid ground and the exact complex-image-line solution over grass
+(tests/reference/image_source.py, independent code). Its stratified-medium checks against the GFPE are in
+tests/shadows/test_shadow_gfpe.py."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bentray.engine.acoustics.ground import delany_bazley_impedance
+from bentray.engine.acoustics.wavenumber import ffp_cells, ffp_field
+from tests.reference import image_source
+
+RANGES = np.array([30.0, 80.0, 200.0, 450.0, 800.0])
+HOMOGENEOUS = lambda z: np.full(np.shape(z), 343.0)  # noqa: E731 - image_source's default c0
+
+
+@pytest.mark.parametrize(("f", "zs"), [(100.0, 2.0), (250.0, 1.0), (100.0, 0.5)])
+def test_rigid_ground_is_the_image_source(f, zs):
+    heights = [0.0, 1.5, 4.0]
+    got = ffp_field(f, HOMOGENEOUS, None, zs, heights, 1000.0, 100.0)
+    for i, zr in enumerate(heights):
+        ref = image_source.pressure(f, zs, RANGES, [zr])[:, 0]
+        p = got.pressure(RANGES, np.full(RANGES.size, i))
+        np.testing.assert_allclose(20 * np.log10(np.abs(p) / np.abs(ref)), 0.0, atol=0.2)
+
+
+def test_grass_is_the_exact_solution():
+    f, zs, zr = 250.0, 2.0, 1.5
+    z = complex(delany_bazley_impedance(f, 200_000.0))
+    got = ffp_field(f, HOMOGENEOUS, z, zs, [zr], 1000.0, 100.0).pressure(RANGES, np.zeros(RANGES.size, int))
+    ref = image_source.exact_pressure(f, zs, RANGES, [zr], 200_000.0)[:, 0]
+    np.testing.assert_allclose(20 * np.log10(np.abs(got) / np.abs(ref)), 0.0, atol=0.2)
+
+
+def test_bad_arguments_and_the_cost_measure():
+    with pytest.raises(ValueError, match="z_top"):
+        ffp_field(100.0, HOMOGENEOUS, None, 2.0, [50.0], 1000.0, 40.0)
+    with pytest.raises(ValueError, match="frequency_hz"):
+        ffp_field(-1.0, HOMOGENEOUS, None, 2.0, [1.5], 1000.0, 100.0)
+    assert ffp_field(100.0, HOMOGENEOUS, None, 2.0, [1.5], 1000.0, 100.0).cells == ffp_cells(
+        100.0, 343.0, 2.0, 1000.0, 100.0
+    )
+    assert ffp_cells(200.0, 343.0, 2.0, 1000.0, 100.0) > 3.9 * ffp_cells(100.0, 343.0, 2.0, 1000.0, 100.0)
