@@ -7,7 +7,9 @@ face are Richardson-differentiated (truncation O(h^4)). Rays whose neighbours pa
 side (another crossing or reflection count) are left out; the test asserts that most rays are compared.
 Errors are relative to |X_k| (or, near a caustic, 10 % of the ray's length) and to |P_k|.
 
-Measured (commit of this file, `pytest -q tests/engine/test_paraxial_curves.py -s`): printed per case.
+Measured (`pytest -q -s tests/engine/test_paraxial_curves.py`, worst relative over the fan): A-LD slabs
+circular 3.7e-8, n-linear 1.7e-8 (12,000 crossings, 21 reflections); tets circular 6.4e-8; linear c
+(one cell) 8e-10 / 1.2e-9; the ridge terrain circular 2.8e-7, n-linear 5e-9; with wind see below.
 """
 
 from __future__ import annotations
