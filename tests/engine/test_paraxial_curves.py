@@ -9,7 +9,8 @@ Errors are relative to |X_k| (or, near a caustic, 10 % of the ray's length) and 
 
 Measured (`pytest -q -s tests/engine/test_paraxial_curves.py`, worst relative over the fan): A-LD slabs
 circular 3.7e-8, n-linear 1.7e-8 (12,000 crossings, 21 reflections); tets circular 6.4e-8; linear c
-(c = 340 + 0.1 z, 10 reflections; one cell for the circle) 8.9e-10 / 1.7e-9; the ridge terrain circular 2.8e-7, n-linear 5e-9; with wind see below.
+(c = 340 + 0.1 z, 10 reflections; one cell for the circle) 8.9e-10 / 1.7e-9; the ridge terrain
+circular 2.8e-7, n-linear 5e-9; with wind see below.
 """
 
 from __future__ import annotations
