@@ -27,7 +27,7 @@ import numpy as np
 from numba import cuda as _cuda
 
 from bentray.engine.kernels import beams, curves, paraxial
-from bentray.engine.kernels.beams import BEAM_COHERENT, BEAM_INCOHERENT, BEAM_OFF, PB_W
+from bentray.engine.kernels.beams import BEAM_COHERENT, BEAM_INCOHERENT, BEAM_OFF, PB_AMP, PB_REL_I, PB_TAU, PB_U, PB_W
 from bentray.engine.kernels.traverse import _p_at
 
 __all__ = ["BeamScratch", "beam_segment_device", "ray_sample_device"]
@@ -45,17 +45,28 @@ class BeamScratch(NamedTuple):
 
 @cuda.jit(device=True)
 def _add_atomic(grid, acc, chord, v, terms):
-    """``beams._accumulate`` with atomics into slot 0 (the device's one accumulator)."""
+    """``beams._accumulate`` with atomics into slot 0 (the device's one accumulator): the same per-band terms."""
+    amp_a = chord[2]
+    amp_b = chord[3]
     group = chord[4]
-    cuda.atomic.add(acc.weight, (0, group, v), terms[PB_W])
+    kmah = chord[5]
+    w = terms[PB_W]
+    u = terms[PB_U]
+    cuda.atomic.add(acc.weight, (0, group, v), w)
     cuda.atomic.add(acc.hits, (0, v), 1.0)
     n_f = grid.omega.shape[0]
     if grid.mode != BEAM_COHERENT:
+        rel_i = terms[PB_REL_I]
         for f in range(n_f):
-            cuda.atomic.add(acc.energy, (0, group, f, v), beams.band_energy(chord, terms, f))
+            e = beams.band_energy(amp_a[0, f], amp_a[1, f], amp_b[0, f], amp_b[1, f], u, w, rel_i)
+            cuda.atomic.add(acc.energy, (0, group, f, v), e)
     if grid.mode != BEAM_INCOHERENT:
+        tau = terms[PB_TAU]
+        amp = terms[PB_AMP]
         for f in range(n_f):
-            re, im = beams.band_coherent(grid, chord, terms, f)
+            re, im = beams.band_coherent(
+                amp_a[0, f], amp_a[1, f], amp_b[0, f], amp_b[1, f], u, kmah, grid.omega[f], tau, amp
+            )
             cuda.atomic.add(acc.s_re, (0, group, f, v), re)
             cuda.atomic.add(acc.s_im, (0, group, f, v), im)
 

@@ -274,7 +274,9 @@ def point_beam_terms(grid, chord, px, py, pz, scratch, terms):
 
     scratch : (POINT_SCRATCH,) work array; terms : (PB_SIZE,) out array (both caller-provided: no allocation,
     so the device kernel calls this too)."""
-    sa, sb, amp_a, amp_b, group, kmah, launch_cos = chord
+    sa = chord[0]
+    sb = chord[1]
+    launch_cos = chord[6]
     da = (px - sa[S_X]) * sa[S_T] + (py - sa[S_X + 1]) * sa[S_T + 1] + (pz - sa[S_X + 2]) * sa[S_T + 2]
     if da < 0.0:
         return False
@@ -342,46 +344,48 @@ def point_beam_terms(grid, chord, px, py, pz, scratch, terms):
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
-def band_energy(chord, terms, f):
-    """Band f's incoherent term ``w I / I_1m |A|^2`` of a point's beam (``terms`` of point_beam_terms)."""
-    amp_a = chord[2]
-    amp_b = chord[3]
-    u = terms[PB_U]
+def band_energy(a_re, a_im, b_re, b_im, u, w, rel_i):
+    """One band's incoherent term ``w I / I_1m |A|^2`` of a point's beam: A interpolated at the foot (u) between
+    the chord's amplitudes (a_re + i a_im at sample a, b_re + i b_im at b); w, rel_i from point_beam_terms.
+    Scalars only (no array taken from a tuple per band: that costs reference counting in the hot loop)."""
     v_ = 1.0 - u
-    re = v_ * amp_a[0, f] + u * amp_b[0, f]
-    im = v_ * amp_a[1, f] + u * amp_b[1, f]
-    return terms[PB_W] * terms[PB_REL_I] * (re * re + im * im)
+    re = v_ * a_re + u * b_re
+    im = v_ * a_im + u * b_im
+    return w * rel_i * (re * re + im * im)
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
-def band_coherent(grid, chord, terms, f):
-    """Band f's coherent term ``w A sqrt(I / I_1m) exp(i omega tau)`` (re, im) of a point's beam."""
-    amp_a = chord[2]
-    amp_b = chord[3]
-    u = terms[PB_U]
+def band_coherent(a_re, a_im, b_re, b_im, u, kmah, omega, tau, amp):
+    """One band's coherent term ``w sqrt(I / I_1m) A (-i)^kmah exp(i omega tau)`` (re, im) of a point's beam
+    (omega: the band's angular frequency; tau, amp from point_beam_terms). Scalars only."""
     v_ = 1.0 - u
-    re, im = _turn(v_ * amp_a[0, f] + u * amp_b[0, f], v_ * amp_a[1, f] + u * amp_b[1, f], chord[5])
-    ph = grid.omega[f] * terms[PB_TAU]
+    re, im = _turn(v_ * a_re + u * b_re, v_ * a_im + u * b_im, kmah)
+    ph = omega * tau
     cph = math.cos(ph)
     sph = math.sin(ph)
-    amp = terms[PB_AMP]
     return amp * (re * cph - im * sph), amp * (re * sph + im * cph)
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
-def _accumulate(grid, acc, slot, chord, v, terms):
+def _accumulate(grid, acc, slot, amp_a, amp_b, group, kmah, v, terms):
     """Add a point's beam (``terms``) to point v of accumulator slot ``slot`` (the CPU's per-slot ``+=``;
     the device kernel adds the same terms with atomics, engine/gpu/beam_device.py)."""
-    group = chord[4]
-    acc.weight[slot, group, v] += terms[PB_W]
+    w = terms[PB_W]
+    u = terms[PB_U]
+    acc.weight[slot, group, v] += w
     acc.hits[slot, v] += 1.0
     n_f = grid.omega.shape[0]
     if grid.mode != BEAM_COHERENT:
+        rel_i = terms[PB_REL_I]
         for f in range(n_f):
-            acc.energy[slot, group, f, v] += band_energy(chord, terms, f)
+            acc.energy[slot, group, f, v] += band_energy(
+                amp_a[0, f], amp_a[1, f], amp_b[0, f], amp_b[1, f], u, w, rel_i
+            )
     if grid.mode != BEAM_INCOHERENT:
+        tau = terms[PB_TAU]
+        amp = terms[PB_AMP]
         for f in range(n_f):
-            re, im = band_coherent(grid, chord, terms, f)
+            re, im = band_coherent(amp_a[0, f], amp_a[1, f], amp_b[0, f], amp_b[1, f], u, kmah, grid.omega[f], tau, amp)
             acc.s_re[slot, group, f, v] += re
             acc.s_im[slot, group, f, v] += im
 
@@ -392,7 +396,7 @@ def _point_beam(grid, acc, slot, chord, px, py, pz, v, scratch, terms):
     the point or its hat weight is zero. scratch, terms : work arrays of :func:`point_beam_terms`."""
     if not point_beam_terms(grid, chord, px, py, pz, scratch, terms):
         return False
-    _accumulate(grid, acc, slot, chord, v, terms)
+    _accumulate(grid, acc, slot, chord[2], chord[3], chord[4], chord[5], v, terms)
     return True
 
 
