@@ -41,7 +41,7 @@ def trace_batch(plan: TracePlan, start: int, stop: int) -> BatchResult:
     t0 = time.perf_counter()
     sl = slice(start, stop)
     restarts = None
-    buffers = None
+    buffers: FieldBuffers | BeamBuffers | None = None
     if plan.baseline is not None:
         from bentray.engine.baselines.trace_numerical import trace_numerical
 
@@ -70,11 +70,12 @@ def trace_batch(plan: TracePlan, start: int, stop: int) -> BatchResult:
     elif _on_cuda(plan):
         from bentray.engine.gpu.tracer import trace_cuda  # numba-cuda: final ray states and beam fields
 
+        beam_buf: BeamBuffers | None = None
         if plan.field is not None:  # a beam field (_on_cuda refuses voxel fields): one device accumulator
             assert plan.field_weights is not None and isinstance(plan.field, BeamBuffers)
-            buffers = plan.field.like(plan.field_weights[sl], n_slots=1)
+            beam_buf = plan.field.like(plan.field_weights[sl], n_slots=1)
             if plan.ray_amplitudes is not None:
-                buffers.ray_amp = plan.ray_amplitudes[sl]
+                beam_buf.ray_amp = plan.ray_amplitudes[sl]
         result, _ = trace_cuda(
             plan.mesh,
             plan.curve,
@@ -86,12 +87,12 @@ def trace_batch(plan: TracePlan, start: int, stop: int) -> BatchResult:
             max_reflections=plan.max_reflections,
             max_steps=plan.max_steps,
             wind=plan.wind,
-            beams=buffers,
+            beams=beam_buf,
         )
-        if buffers is None:
+        if beam_buf is None:
             result.reflection_cos = result.reflection_material = None  # as the CPU path without a field
         else:
-            buffers.collapse(ray_offset=start)
+            buffers = beam_buf.collapse(ray_offset=start)
     else:
         if plan.field is not None:
             assert plan.field_weights is not None

@@ -88,8 +88,8 @@ def _field_case(count: int) -> dict[str, Any]:
     n_el = max(count // n_az, 2)
     el = np.linspace(-20.0, 20.0, n_el)
     az = np.linspace(-10.0, 10.0, n_az) if n_az > 1 else np.zeros(1)
-    e, a = np.meshgrid(np.radians(el), np.radians(az), indexing="ij")
-    e, a = e.ravel(), a.ravel()
+    e_grid, a_grid = np.meshgrid(np.radians(el), np.radians(az), indexing="ij")
+    e, a = e_grid.ravel(), a_grid.ravel()
     d = np.column_stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
     src = np.asarray([case.source], float)
     n = d.shape[0]
