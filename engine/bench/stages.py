@@ -16,6 +16,7 @@ import argparse
 import json
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -68,18 +69,20 @@ def stage_table(job_file: Path, rounds: int = 2) -> dict[str, list[float]]:
     traced = None
     for _ in range(rounds):
         for name, (j, plan, fan, _) in plans.items():
-            run = (j, plan, fan)
-            out = _timed(rows, name, lambda r=run: stages.stage_trace(*r, LocalExecutor(), quiet, StageLog()))
+            out = _timed(rows, name, partial(stages.stage_trace, j, plan, fan, LocalExecutor(), quiet, StageLog()))
             traced = out if name == "trace (field)" else traced
     j, _, _, setup = plans["trace (field)"]
+    assert traced is not None
     base = _timed(rows, "field", lambda: stages.stage_field(j, profile, surfaces, traced, setup, log))
     recv = stages.stage_receivers(j, traced, setup, log)
     for _ in range(rounds):
         fa, rc = copy.deepcopy(base), copy.deepcopy(recv)
-        args = (j, profile, wind, surfaces, setup, fa, rc, StageLog())
-        _timed(rows, "diffraction", lambda a=args: stage_diffraction(*a))
-        _timed(rows, "terrain_screening", lambda a=args: stage_terrain_screening(*a))
-        _timed(rows, "refractive_shadow", lambda a=args: stage_refractive_shadow(*a))
+        for stage_name, stage_fn in (
+            ("diffraction", stage_diffraction),
+            ("terrain_screening", stage_terrain_screening),
+            ("refractive_shadow", stage_refractive_shadow),
+        ):
+            _timed(rows, stage_name, partial(stage_fn, j, profile, wind, surfaces, setup, fa, rc, StageLog()))
     field, nofield = rows["trace (field)"], rows["trace (no field)"]
     rows["deposits (difference)"] = [field[0] - nofield[0], field[1] - nofield[1]]
     return rows

@@ -262,9 +262,9 @@ def _any_seen(
     for phi0 in s_phis:
         for phi in r_phis:
             ok = np.ones(rec.shape[0], bool)
-            if not rec_only:
+            if phi0 is not None:
                 ok &= (phi0 <= n * np.pi + slack) | (phi0 >= 2 * np.pi - slack)
-            if not src_only:
+            if phi is not None:
                 ok &= (phi <= n * np.pi + slack) | (phi >= 2 * np.pi - slack)
             out |= ok
     return out
