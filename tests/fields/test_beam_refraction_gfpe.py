@@ -44,35 +44,37 @@ PROFILES = {
 }
 
 
+def _spec(name: str, f: float) -> dict:
+    """The comparison job: vertical fan over grass, a line of field points at ZR."""
+    return {
+        "name": f"gfpe-{name}",
+        "scene": {
+            "domain": {"min": [-20, -20, 0], "max": [1020, 20, 300]},
+            "ground": {"kind": "flat", "flow_resistivity": GRASS},
+        },
+        "profile": PROFILES[name][0],
+        "sources": [{"position": [0.0, 0.0, ZS]}],
+        "rays": {
+            "elevation_deg": {"min": -30.0, "max": 30.0, "count": 1201},
+            "azimuth_deg": {"min": 0.0, "max": 0.0, "count": 1},
+            "max_time_s": 3.2,
+            "max_reflections": 8,
+        },
+        "field": {
+            "origin": [XS[0], 0.0, ZR],
+            "spacing": [2.0, 1.0, 1.0],
+            "shape": [XS.size, 1, 1],
+            "frequencies_hz": [f],
+            "absorption": False,
+            "mode": "coherent",
+        },
+        "outputs": ["field", "report"],
+    }
+
+
 @cache
 def _beams(name: str, f: float):
-    spec, _ = PROFILES[name]
-    job = Job.model_validate(
-        {
-            "name": f"gfpe-{name}",
-            "scene": {
-                "domain": {"min": [-20, -20, 0], "max": [1020, 20, 300]},
-                "ground": {"kind": "flat", "flow_resistivity": GRASS},
-            },
-            "profile": spec,
-            "sources": [{"position": [0.0, 0.0, ZS]}],
-            "rays": {
-                "elevation_deg": {"min": -30.0, "max": 30.0, "count": 1201},
-                "azimuth_deg": {"min": 0.0, "max": 0.0, "count": 1},
-                "max_time_s": 3.2,
-                "max_reflections": 8,
-            },
-            "field": {
-                "origin": [XS[0], 0.0, ZR],
-                "spacing": [2.0, 1.0, 1.0],
-                "shape": [XS.size, 1, 1],
-                "frequencies_hz": [f],
-                "absorption": False,
-                "mode": "coherent",
-            },
-            "outputs": ["field", "report"],
-        }
-    )
+    job = Job.model_validate(_spec(name, f))
     return run_job(job)
 
 
@@ -113,35 +115,11 @@ EIG_RANGES = (140.0, 300.0, 460.0, 620.0, 780.0, 940.0)
 def _beams_and_eigenrays(name: str, f: float):
     """The same job with receivers at EIG_RANGES (1.5 m) and a fine eigenray bracket (7,201 elevations: the
     default 721 misses the grazing multi-bounce arrivals, 16 of 24 at 800 m)."""
-    spec, _ = PROFILES[name]
-    job = Job.model_validate(
-        {
-            "name": f"eig-{name}",
-            "scene": {
-                "domain": {"min": [-20, -20, 0], "max": [1020, 20, 300]},
-                "ground": {"kind": "flat", "flow_resistivity": GRASS},
-            },
-            "profile": spec,
-            "sources": [{"position": [0.0, 0.0, ZS]}],
-            "rays": {
-                "elevation_deg": {"min": -30.0, "max": 30.0, "count": 1201},
-                "azimuth_deg": {"min": 0.0, "max": 0.0, "count": 1},
-                "max_time_s": 3.2,
-                "max_reflections": 8,
-            },
-            "field": {
-                "origin": [XS[0], 0.0, ZR],
-                "spacing": [2.0, 1.0, 1.0],
-                "shape": [XS.size, 1, 1],
-                "frequencies_hz": [f],
-                "absorption": False,
-                "mode": "coherent",
-            },
-            "receivers": [{"id": f"r{int(x)}", "position": [x, 0.0, ZR]} for x in EIG_RANGES],
-            "eigenrays": {"enabled": "on", "elevations": 7201},
-            "outputs": ["field", "report"],
-        }
-    )
+    spec = _spec(name, f)
+    spec["name"] = f"eig-{name}"
+    spec["receivers"] = [{"id": f"r{int(x)}", "position": [x, 0.0, ZR]} for x in EIG_RANGES]
+    spec["eigenrays"] = {"enabled": "on", "elevations": 7201}
+    job = Job.model_validate(spec)
     return run_job(job).receivers.rows
 
 
