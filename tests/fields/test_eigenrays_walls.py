@@ -105,3 +105,23 @@ def test_wall_arrivals_are_the_image_source_ones(i):
         assert k == k_want
         assert abs(spread * dist - 1.0) < 1e-6
     assert not out.arrivals.failures[i]
+
+
+def test_the_cost_models_wall_count_is_the_search_test():
+    """scenes.cost._wall_fans (vectorised over walls) counts exactly the walls engine.eigenrays.wall_images
+    takes, over random receivers around two buildings (one given clockwise)."""
+    rng = np.random.default_rng(7)
+    second = [[30.0, 40.0], [30.0, 55.0], [45.0, 55.0], [45.0, 40.0]]  # clockwise
+    recs = rng.uniform([-55, -35], [35, 75], size=(40, 2))
+    spec = _job().model_dump(mode="json", exclude_none=True)
+    spec["scene"]["buildings"] = {
+        "footprints": [{"polygon": BUILDING, "height_m": 10}, {"polygon": second, "height_m": 6}]
+    }
+    spec["receivers"] = [{"id": f"q{i}", "position": [float(x), float(y), 1.5]} for i, (x, y) in enumerate(recs)]
+    job = Job.model_validate(spec)
+    walls = []
+    for ring in (np.array(BUILDING), np.array(second)[::-1]):
+        for a, b in zip(ring, np.roll(ring, -1, axis=0), strict=True):
+            walls.append([a[0], a[1], b[0], b[1], 0.0, 10.0])
+    loop = sum(len(wall_images(SRC, np.array([x, y, 1.5]), np.array(walls))) for x, y in recs)
+    assert loop > 5 and _wall_fans(job) == loop
