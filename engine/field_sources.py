@@ -9,6 +9,7 @@ Codes (uint8, written as ``field_source`` into field.vti and receivers.csv; coun
  2    DIFFRACTED          an edge-diffraction model alone (the beam field replaced)
  3    REFRACTIVE_SHADOW   a refractive-shadow model (creeping waves / turbulent scattering)
  4    COMBINATION         more than one of the above contribute (a blend or an added part)
+ 5    WAVE                the wave field (wavenumber integral, engine/wave_stage.py) in every band
 ====  ==================  ====================================================================
 
 The combine API (:func:`combine`): the beam field's level arrays (``tl_<band>hz``, ``spl_<band>hz``,
@@ -43,6 +44,7 @@ __all__ = [
     "NONE",
     "REFRACTIVE_SHADOW",
     "SOURCE_NAMES",
+    "WAVE",
     "Contribution",
     "combine",
     "combine_receiver_rows",
@@ -54,14 +56,16 @@ GEOMETRIC = 1
 DIFFRACTED = 2
 REFRACTIVE_SHADOW = 3
 COMBINATION = 4
+WAVE = 5
 SOURCE_NAMES = {NONE: "none", GEOMETRIC: "geometric", DIFFRACTED: "diffracted",
-                REFRACTIVE_SHADOW: "refractive_shadow", COMBINATION: "combination"}  # fmt: skip
+                REFRACTIVE_SHADOW: "refractive_shadow", COMBINATION: "combination", WAVE: "wave"}  # fmt: skip
 P_REF_INTENSITY = 1e-12  # W/m^2
 
 FIELD_SOURCE_TEXT = (
     "field_source per point: 0 inside the ground or a building (or no level), 1 geometric (beams), "
     "2 diffracted (edge diffraction), 3 refractive shadow (creeping wave / turbulent scattering), "
-    "4 combination; inside_solid: 1 where the point lies inside the ground or a building. "
+    "4 combination, 5 wave field (wavenumber integral, every band); "
+    "inside_solid: 1 where the point lies inside the ground or a building. "
     "NaN levels only inside solids (inside_solid = 1) or where no model reaches a point (field_source 0)"
 )
 

@@ -23,6 +23,7 @@ from bentray.engine.result import JobOutcome
 from bentray.engine.shadow_stage import stage_refractive_shadow
 from bentray.engine.stages import ProgressFn, StageLog
 from bentray.engine.surfaces import SceneSurfaces
+from bentray.engine.wave_stage import stage_wave_field
 from bentray.scenes.crs import LocalFrame
 from bentray.scenes.gis_frame import localise_job
 from bentray.scenes.scene_models import resolve_source_heights
@@ -127,7 +128,11 @@ def run_prepared(prepared: Prepared, *, progress: ProgressFn, executor: Executor
     report_progress("diffraction", 0.92)
     diffraction = stage_diffraction(job, profile, wind, surfaces, setup, field_arrays, receivers, log)
     terrain = stage_terrain_screening(job, profile, wind, surfaces, setup, field_arrays, receivers, log)
-    shadow = stage_refractive_shadow(job, profile, wind, surfaces, setup, field_arrays, receivers, log)
+    wave = stage_wave_field(job, profile, wind, surfaces, setup, field_arrays, receivers, log)
+    wave_bands = [f"{f:g}" for f in wave["bands_hz"]] if wave is not None else []
+    shadow = stage_refractive_shadow(
+        job, profile, wind, surfaces, setup, field_arrays, receivers, log, field_done_labels=wave_bands
+    )
     report_progress("eigenrays", 0.93)
     arrivals = stages.stage_eigenrays(job, profile, wind, setup, start_cells, fan, log, surfaces)
     if receivers is not None and arrivals is not None:
@@ -154,6 +159,8 @@ def run_prepared(prepared: Prepared, *, progress: ProgressFn, executor: Executor
         report["diffraction"] = diffraction
     if terrain is not None:
         report["terrain_screening"] = terrain
+    if wave is not None:
+        report["wave_field"] = wave
     if shadow is not None:
         report["refractive_shadow"] = shadow
     frame = prepared.frame

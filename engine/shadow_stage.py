@@ -79,9 +79,11 @@ def _mode_solves(job: Any, wind: Any, field_arrays: Any, setup: Any) -> int:
 
 def _shadow_energy(
     job: Any, profile: Any, wind: Any, pts: np.ndarray, f_hz: np.ndarray, ground_z: Any, sigma: float | None,
-    powers: np.ndarray | None,
+    powers: np.ndarray | None, no_creep: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:  # fmt: skip
-    """(rel (F, V), powered (F, V) W/m^2 or None, applies (V,)) summed over the sources."""
+    """(rel (F, V), powered (F, V) W/m^2 or None, applies (V,)) summed over the sources; in the bands of
+    ``no_creep`` (F,) bool (those the wave-field stage produced) the scattered part alone (0 without
+    turbulence), no wavenumber integral."""
     n_f, n = f_hz.size, pts.shape[0]
     rel = np.zeros((n_f, n))
     powered = np.zeros((n_f, n)) if powers is not None else None
@@ -93,13 +95,17 @@ def _shadow_energy(
     for s, src in enumerate(job.sources):
         xyz = np.asarray(src.position, float)
         sg = float(ground_z(xyz[None, :2])[0])
-        sf = refractive_shadow_energy(profile, xyz, pts, gz, sg, sigma, f_hz, t, wind)
-        _LAST_RUN["z_top_m"] = max(_LAST_RUN["z_top_m"], sf.z_top_m)
-        _LAST_RUN["cells"] += sf.cells
-        rel += sf.energy_rel
-        if powered is not None and powers is not None:
-            powered += sf.energy_rel * (powers[s][:, None] / (4.0 * math.pi))
-        applies |= sf.applies
+        skip = np.zeros(n_f, bool) if no_creep is None else np.asarray(no_creep, bool)
+        for rows, creeping in ((~skip, True), (skip, False)):
+            if not rows.any() or (not creeping and t is None):
+                continue
+            sf = refractive_shadow_energy(profile, xyz, pts, gz, sg, sigma, f_hz[rows], t, wind, creeping=creeping)
+            _LAST_RUN["z_top_m"] = max(_LAST_RUN["z_top_m"], sf.z_top_m)
+            _LAST_RUN["cells"] += sf.cells
+            rel[rows] += sf.energy_rel
+            if powered is not None and powers is not None:
+                powered[rows] += sf.energy_rel * (powers[s][rows][:, None] / (4.0 * math.pi))
+            applies |= sf.applies
     return rel, powered, applies
 
 
@@ -126,8 +132,9 @@ Energy = tuple[np.ndarray, np.ndarray | None, np.ndarray]
 
 
 def _apply_field(
-    job: Any, profile: Any, wind: Any, surfaces: Any, setup: Any, field_arrays: Any, energy: Energy | None = None
-) -> dict[str, Any]:
+    job: Any, profile: Any, wind: Any, surfaces: Any, setup: Any, field_arrays: Any, energy: Energy | None = None,
+    done: Any = frozenset(),
+) -> dict[str, Any]:  # fmt: skip
     spec = job.field
     ground_z, sigma = _ground(job, surfaces)
     labels = list(spec.labels)
@@ -135,15 +142,22 @@ def _apply_field(
     solid = np.asarray(field_arrays.arrays["inside_solid"], bool).reshape(-1)
     if energy is None:
         pts = _field_points(job, field_arrays, ground_z)
-        energy = _shadow_energy(job, profile, wind, pts, f_hz, ground_z, sigma, setup.powers)
+        no_creep = np.array([lab in done for lab in labels])
+        energy = _shadow_energy(job, profile, wind, pts, f_hz, ground_z, sigma, setup.powers, no_creep)
     rel_new, powered, applies = energy
     applies &= ~solid
     old_rel = _rel_of(field_arrays.arrays, labels)
     w = _weight(old_rel, rel_new, applies)
     old_code = np.asarray(field_arrays.arrays["field_source"]).reshape(-1)
-    contrib = Contribution(REFRACTIVE_SHADOW, rel_new, w, powered=powered)
+    contribs = [Contribution(REFRACTIVE_SHADOW, rel_new, w, powered=powered)]
+    wave_rows = np.array([lab in done for lab in labels])
+    if wave_rows.any():  # the wave field's bands: rel_new is the scattered part alone there, added
+        w[wave_rows] = 0.0
+        ws = (wave_rows[:, None] & applies[None, :] & (rel_new > 0)).astype(float)
+        contribs.append(Contribution(REFRACTIVE_SHADOW, rel_new, ws, powered=powered, mode="add"))
+        w = np.maximum(w, ws)  # for the codes
     coherent = spec.mode != "incoherent"
-    combine(field_arrays.arrays, labels, np.asarray(a_weighting_db(f_hz), float), [contrib], coherent, solid)
+    combine(field_arrays.arrays, labels, np.asarray(a_weighting_db(f_hz), float), contribs, coherent, solid)
     code = _codes(old_code, w, old_rel.max(axis=0) > 0)
     code[solid] = NONE
     field_arrays.arrays["field_source"] = code.reshape(field_arrays.grid.shape)
@@ -182,10 +196,21 @@ def _apply_receivers(
 
 
 def stage_refractive_shadow(
-    job: Any, profile: Any, wind: Any, surfaces: Any, setup: Any, field_arrays: Any, receivers: Any, log: Any
-) -> dict[str, Any] | None:
+    job: Any, profile: Any, wind: Any, surfaces: Any, setup: Any, field_arrays: Any, receivers: Any, log: Any,
+    field_done_labels: Any = (),
+) -> dict[str, Any] | None:  # fmt: skip
     """Run the stage on the field arrays and receiver rows in place (module docstring); returns the
-    report's ``refractive_shadow`` section (None when skipped; the reason is in log.stages)."""
+    report's ``refractive_shadow`` section (None when skipped; the reason is in log.stages).
+    field_done_labels: band labels the wave-field stage (engine/wave_stage.py) produced on the field grid;
+    the integral there already holds the shadow's creeping waves, so this stage leaves those bands of the
+    map alone unless turbulence is given (then it adds only the scattered part there); receivers keep all."""
+    done = set(field_done_labels)
+    if done and field_arrays is not None and job.field is not None and done >= set(job.field.labels):
+        if job.turbulence is None and receivers is None:
+            log.stages["refractive_shadow"] = (
+                "skipped: the wave-field stage produced every band of the map (its integral includes the shadow)"
+            )
+            return None
     if field_arrays is None and receivers is None:
         log.stages["refractive_shadow"] = "skipped: no field and no receivers"
         return None
@@ -224,7 +249,7 @@ def stage_refractive_shadow(
     }
     with_rec = receivers is not None and setup.receivers_xyz is not None
     e_field = e_rec = None
-    if field_arrays is not None and with_rec:
+    if field_arrays is not None and with_rec and not done:
         f_hz = np.asarray(job.field.frequencies_hz, float)
         if np.array_equal(f_hz, np.asarray(receivers.stats["frequencies_hz"], float)):
             # one wavenumber integral per band for the map and the receivers together
@@ -236,7 +261,7 @@ def stage_refractive_shadow(
             e_field = (rel[:, :n], None if powered is None else powered[:, :n], applies[:n])
             e_rec = (rel[:, n:], None if powered is None else powered[:, n:], applies[n:])
     if field_arrays is not None:
-        out["field"] = _apply_field(job, profile, wind, surfaces, setup, field_arrays, e_field)
+        out["field"] = _apply_field(job, profile, wind, surfaces, setup, field_arrays, e_field, done)
     if with_rec:
         out["receivers"] = _apply_receivers(job, profile, wind, surfaces, setup, receivers, e_rec)
     out["seconds"] = time.perf_counter() - t0

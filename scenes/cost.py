@@ -79,6 +79,8 @@ __all__ = [
     "mesh_problems",
     "records_paths",
     "shadow_cost",
+    "wave_blockers",
+    "wave_cost",
 ]
 
 PATH_SAMPLE_BYTES = 104  # measured, see the module docstring
@@ -106,6 +108,11 @@ SHADOW_SECONDS_PER_CELL = 1e-7
 SHADOW_AUTO_MAX_SOLVES = 16  # engine/shadow_stage.py's 'auto' limits: integrals ...
 SHADOW_AUTO_MAX_SECONDS = 600.0  # ... and estimated seconds (shadow_cost)
 DEFAULT_SHADOW_SECONDS = 1800.0  # budget of the refractive-shadow stage of one job
+# The wave-field stage (engine/wave_stage.py): the same wavenumber integral over every point; measured 1.0e-7 s
+# per cell (500 Hz, 1 km, top 60 m: 2.66e7 cells in 2.6 s; 300 m: 1.33e8 in 10 s, 2026-12-02, loaded 2-core box)
+WAVE_SECONDS_PER_CELL = 1e-7
+WAVE_AUTO_MAX_SECONDS = 120.0  # 'auto': the bands, lowest first, while their estimated seconds add up to this
+DEFAULT_WAVE_SECONDS = 1800.0  # budget of the wave stage of one job ('on')
 # profile kinds that vary with z only (engine Profile.stratified): slabs, no 3D mesh, over flat ground
 _STRATIFIED_KINDS = (
     "homogeneous",
@@ -158,6 +165,7 @@ class CostLimits:
     threads: int = os.cpu_count() or 1
     mesh_seconds: float = dc_field(default_factory=_default_mesh_seconds)
     shadow_seconds: float = DEFAULT_SHADOW_SECONDS
+    wave_seconds: float = DEFAULT_WAVE_SECONDS
 
 
 @dataclass(frozen=True)
@@ -170,6 +178,7 @@ class CostEstimate:
     eigenray_steps: float = 0.0
     shadow_solves: int = 0
     shadow_seconds: float = 0.0
+    wave_seconds: float = 0.0
 
     @property
     def memory_bytes(self) -> int:
@@ -236,6 +245,7 @@ def estimate_cost(job: Any, threads: int) -> CostEstimate:
         eigenray_steps=float(eigen_steps),
         shadow_solves=solves * runs,
         shadow_seconds=seconds * runs,
+        wave_seconds=sum(wave_cost(job)[1]) * runs,
     )
 
 
@@ -362,6 +372,92 @@ def shadow_cost(job: Any, apply_auto: bool = True) -> tuple[int, float]:
     if apply_auto and setting == "auto" and (solves > SHADOW_AUTO_MAX_SOLVES or seconds > SHADOW_AUTO_MAX_SECONDS):
         return 0, 0.0
     return solves, seconds
+
+
+_WAVE_WIND_KINDS = ("log",)  # horizontally uniform winds (the ridge wind varies along x)
+
+
+def wave_blockers(job: Any) -> list[str]:
+    """Why the wave-field stage (engine/wave_stage.py) cannot apply to the job: [] for a range-independent
+    scene (flat ground of one material, no terrain, buildings, barriers, obstacles or ground zones, an open
+    top, a stratified profile, no wind or a log-law wind, omnidirectional sources) with a beam field in
+    coherent or semicoherent mode (the integral is a coherent field; incoherent maps keep the beams)."""
+    out: list[str] = []
+    spec = job.field
+    if spec is None or getattr(spec, "method", "beams") != "beams":
+        out.append("it needs a beam field (field with method 'beams')")
+    elif spec.mode == "incoherent":
+        out.append("the wave field is coherent; field.mode 'incoherent' keeps the beams (use 'coherent' or "
+                   "'semicoherent')")  # fmt: skip
+    scene = job.scene
+    if scene.builtin is not None or scene.terrain is not None:
+        out.append("the scene has terrain (the integral needs flat ground)")
+    b = scene.buildings
+    if b is not None and (b.file or b.footprints or b.obstacles or b.barriers or b.barriers_file):
+        out.append("the scene has buildings, barriers or obstacles (range-dependent)")
+    if scene.ground_zones is not None:
+        out.append("the scene has ground zones (the integral needs one ground material)")
+    if scene.top.kind != "open":
+        out.append("scene.top is 'reflect' (the integral's top absorbs)")
+    if getattr(job.profile, "kind", None) not in _STRATIFIED_KINDS:
+        out.append(f"profile kind {getattr(job.profile, 'kind', None)!r} is not stratified (range-dependent)")
+    if job.wind is not None and getattr(job.wind, "kind", None) not in _WAVE_WIND_KINDS:
+        out.append(f"wind kind {job.wind.kind!r} varies along the ground (range-dependent)")
+    if any(s.directivity is not None for s in job.sources):
+        out.append("a source has a directivity (the integral is of an omnidirectional point source)")
+    return out
+
+
+def _wave_boxes(job: Any) -> tuple[float, float]:
+    """(largest horizontal range from any source to the field's corners + 10 m, highest field point above the
+    domain bottom) in metres."""
+    spec = job.field
+    lo = [float(v) for v in spec.origin]
+    hi = [o + (n - 1) * d for o, n, d in zip(spec.origin, spec.shape, spec.spacing, strict=True)]
+    r_max = 1.0
+    for src in job.sources:
+        sx, sy = float(src.position[0]), float(src.position[1])
+        r_max = max(r_max, *(math.hypot(x - sx, y - sy) for x in (lo[0], hi[0]) for y in (lo[1], hi[1])))
+    z_hi = hi[2] if spec.heights == "above_ground" else hi[2] - float(job.scene.box.min[2])
+    return r_max + 10.0, max(z_hi, 0.0)
+
+
+def wave_cost(job: Any) -> tuple[list[float], list[float]]:
+    """(bands, estimated seconds per band) of the wave-field stage as it would run: 'auto' takes the bands
+    lowest first while their seconds add up to WAVE_AUTO_MAX_SECONDS (none in homogeneous air without
+    wind, where the beams are exact), 'on' every band, 'off' or a job it
+    cannot apply to (:func:`wave_blockers`) none. Per band: sources x azimuth bins (5 degrees, with wind)
+    x ``ffp_cells`` (f^2 x range x top) x WAVE_SECONDS_PER_CELL, the top max(0.3 x range + 20 m,
+    2 x the highest point + 20 m, 40 wavelengths) (the stage's own rule, engine/acoustics/wave_field.py, is
+    at most this for the profiles of the tests: 66 m for linear c = 340 + 0.1 z to 1 km)."""
+    from bentray.engine.acoustics.wavenumber import ffp_cells
+
+    spec = job.field
+    setting = getattr(spec, "wave_model", "off") if spec is not None else "off"
+    if setting == "off" or wave_blockers(job):
+        return [], []
+    if setting == "auto" and job.wind is None and getattr(job.profile, "kind", None) == "homogeneous":
+        return [], []  # homogeneous air: the beams are the image-source field (nothing to correct)
+    r_max, z_hi = _wave_boxes(job)
+    bands = sorted(float(f) for f in spec.frequencies_hz)
+    boxes = [(float(spec.origin[0]), float(spec.origin[1]), *(o + (n - 1) * d for o, n, d in
+             zip(spec.origin[:2], spec.shape[:2], spec.spacing[:2], strict=True)))]  # fmt: skip
+    out_b: list[float] = []
+    out_s: list[float] = []
+    total = 0.0
+    for f in bands:
+        top = min(2000.0, max(0.3 * r_max + 20.0, 2.0 * z_hi + 20.0, 40.0 * 340.0 / f))
+        sec = 0.0
+        for src in job.sources:
+            bins = _azimuth_bins((float(src.position[0]), float(src.position[1])), boxes) if job.wind else 1
+            zs = float(src.position[2]) - float(job.scene.box.min[2]) if len(src.position) == 3 else 2.0
+            sec += bins * ffp_cells(f, 340.0, max(zs, 0.0), r_max, top) * WAVE_SECONDS_PER_CELL
+        if setting == "auto" and total + sec > WAVE_AUTO_MAX_SECONDS:
+            break
+        total += sec
+        out_b.append(f)
+        out_s.append(sec)
+    return out_b, out_s
 
 
 @dataclass(frozen=True)
@@ -641,6 +737,13 @@ def cost_problems(job: Any, limits: CostLimits, base_dir: str | Path | None = No
             f"{est.shadow_seconds:.3g} s (f^2 x range x top height cells at {SHADOW_SECONDS_PER_CELL:g} s each); "
             f"the limit is {limits.shadow_seconds:g} s: use 'auto' (skips the stage above its limit), 'off', "
             "fewer or lower bands, fewer sources or a smaller map"
+        )
+    if est.wave_seconds > limits.wave_seconds:
+        lines.append(
+            f"field.wave_model: the wave-field stage needs an estimated {est.wave_seconds:.3g} s (sources x bands x "
+            f"azimuth bins wavenumber integrals, f^2 x range x top height cells at {WAVE_SECONDS_PER_CELL:g} s "
+            f"each); the limit is {limits.wave_seconds:g} s: use 'auto' (the bands that fit), 'off', fewer or "
+            "lower bands, fewer sources or a smaller map"
         )
     lines.extend(mesh_problems(job, limits, base_dir))
     return lines

@@ -48,6 +48,12 @@ class FieldSpec(BaseModel):
     holds the grid in (x, y, height above ground)). ``refractive_shadow``: the creeping-wave stage
     (engine/shadow_stage.py): "auto" runs it when it needs at most SHADOW_AUTO_MAX_SOLVES mode solves
     (sources x bands x 5-degree azimuth bins with wind; each 0.3-10 s), "on" always, "off" never.
+    ``wave_model``: the wave-field stage (engine/wave_stage.py: the wavenumber integral of the source column's
+    profile at every point, exact for a range-independent scene, replacing the beams in its bands): "auto" runs
+    it where it applies (flat ground of one material, no buildings, barriers, terrain or ground zones, a
+    stratified profile, no wind or a log wind, omnidirectional sources, mode coherent or semicoherent) for the
+    bands, lowest first, whose estimated cost fits scenes/cost.WAVE_AUTO_MAX_SECONDS; "on" for every band,
+    refused (naming this field) where it cannot apply; "off": beams only.
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -68,6 +74,7 @@ class FieldSpec(BaseModel):
     receiver_height_m: float = Field(default=4.0, ge=0.0, le=MAX_LENGTH_M)
     sample_fraction: float = Field(default=0.5, gt=0.0, le=2.0)
     refractive_shadow: Literal["auto", "on", "off"] = "auto"
+    wave_model: Literal["auto", "on", "off"] = "auto"
 
     @field_validator("spacing")
     @classmethod

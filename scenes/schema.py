@@ -590,6 +590,11 @@ class Job(_Model):
                     None,
                 )
             )
+        if self.field is not None and self.field.wave_model == "on":
+            from bentray.scenes.cost import wave_blockers
+
+            for why in wave_blockers(self):
+                errors.append((("field", "wave_model"), f"'on' cannot apply: {why}", self.field.wave_model))
         if self.field is not None and self.field.method == "beams" and self.solver.is_baseline:
             errors.append(
                 (

@@ -158,6 +158,7 @@ def refractive_shadow_energy(
     *,
     azimuth_bin_deg: float = 5.0,
     z_top_m: float | None = None,
+    creeping: bool = True,
 ) -> ShadowField:
     """Creeping-wave and scattered energy in the refractive shadow (module docstring).
 
@@ -168,9 +169,11 @@ def refractive_shadow_energy(
     scattering); wind: the kernel form (code, params) or None; azimuth_bin_deg: with wind, points are
     grouped by azimuth in bins this wide (each bin one profile and one wavenumber integral per band);
     z_top_m: the wavenumber integral's top (m above the ground), None = :func:`shadow_top_height` (a
-    converged parameter: the result must not depend on it once it is above the limiting ray's height).
-    Cost: one wavenumber integral per (bin, frequency), proportional to f^2 x range x top height
-    (engine/acoustics/wavenumber.py: 0.3 s at 100 Hz, 13 s at 500 Hz, 60 s at 1 kHz to 1 km).
+    converged parameter: the result must not depend on it once it is above the limiting ray's height);
+    creeping: False leaves the creeping part 0 (no integral: the wave-field stage already holds it) and
+    returns the scattered part and ``applies`` alone. Cost: one wavenumber integral per (bin, frequency),
+    proportional to f^2 x range x top height (engine/acoustics/wavenumber.py: 0.3 s at 100 Hz, 13 s at
+    500 Hz, 60 s at 1 kHz to 1 km).
     """
     src = np.asarray(source_xyz, float).reshape(3)
     pts = np.asarray(points_xyz, float).reshape(-1, 3)
@@ -181,6 +184,7 @@ def refractive_shadow_energy(
     if freqs.size == 0 or not np.all(np.isfinite(freqs) & (freqs > 0)):
         raise ValueError("frequencies_hz must be finite and > 0")
     n, n_f = pts.shape[0], freqs.size
+    with_creeping = bool(creeping)
     zs = float(src[2] - source_ground_z)
     if not zs >= 0.0:
         raise ValueError(f"the source is below the ground (height {zs:g} m)")
@@ -216,12 +220,13 @@ def refractive_shadow_energy(
         if idx.size == 0:
             continue
         for k, f in enumerate(freqs):
-            energy, top, n_cells = _creeping_energy(
-                c_of_h, float(f), zs, r[idx], zr[idx], flow_resistivity_pa_s_m2, z_top_m
-            )
-            creeping[k, idx] = energy
-            top_used, cells = max(top_used, top), cells + n_cells
-            if first:
+            if with_creeping:
+                energy, top, n_cells = _creeping_energy(
+                    c_of_h, float(f), zs, r[idx], zr[idx], flow_resistivity_pa_s_m2, z_top_m
+                )
+                creeping[k, idx] = energy
+                top_used, cells = max(top_used, top), cells + n_cells
+            if first and with_creeping:
                 methods[k] = "wavenumber_integral"
             if turbulence is not None:
                 slant = np.hypot(r[idx], zr[idx] - zs)

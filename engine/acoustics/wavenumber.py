@@ -134,6 +134,7 @@ def ffp_field(
     need = sorted({js + o for o in range(-2, 3)} | {int(j) + o for j in jr for o in range(-1, 4)})
     need = [j for j in need if j >= 0] + [0, 1, 2]
     j_hi = max(need) + 2
+    keep = set(need)  # only the rows the derivatives and the receivers' stencils read (memory: rows x n_k)
     cc = h * h / 12.0
     # phi_< up from the ground (Taylor start to 4th order, then Numerov)
     up: dict[int, np.ndarray] = {}
@@ -150,7 +151,8 @@ def ffp_field(
             1.0 + cc * (k2[j + 1] - kap2)
         )
         pm, pc = pc, pn
-        up[j + 1] = pn
+        if j + 1 in keep:
+            up[j + 1] = pn
     # phi_> down from the top of the layer (phi = 0 there)
     dn: dict[int, np.ndarray] = {}
     p_next = np.zeros(n_k, complex)
@@ -164,7 +166,8 @@ def ffp_field(
         p_next, p_cur = p_cur, p_prev
         j -= 1
         if j <= j_hi:
-            dn[j] = p_cur
+            if j in keep:
+                dn[j] = p_cur
         elif j % _RESCALE_EVERY == 0:
             s = np.abs(p_cur) + 1e-300
             p_cur, p_next = p_cur / s, p_next / s

@@ -67,6 +67,7 @@ def _spec(name: str, f: float) -> dict:
             "frequencies_hz": [f],
             "absorption": False,
             "mode": "coherent",
+            "wave_model": "off",  # the beams alone: this module documents ray theory's limit
         },
         "outputs": ["field", "report"],
     }
