@@ -5,7 +5,7 @@ the beams.
 Why: ray theory (the beams, and the eigenrays they agree with) misses the wave field where rays turn a few
 metres above the ground, inside their Airy transition (downward refraction: 4.8 dB at 100 Hz over 60-980 m
 for the log profile b = +1), and in the penumbra next to a refractive shadow (upward refraction, 500 Hz).
-The integral is exact for a stratified medium over flat impedance ground (docs/physics.md §16).
+The integral is exact for a stratified medium over flat impedance ground (docs/physics.md §18).
 
 When (:func:`bentray.scenes.cost.wave_blockers`, :func:`bentray.scenes.cost.wave_cost`): ``field.wave_model``
 "auto" (default) where the scene is range-independent and the map is coherent or semicoherent, for the bands,

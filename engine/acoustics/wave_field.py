@@ -6,7 +6,7 @@ fast-field wavenumber integral of engine/acoustics/wavenumber.py (``ffp_field``)
 effective sound-speed profile over the impedance ground. The same integral as the refractive-shadow model
 (engine/acoustics/refractive_shadow.py), here read in the lit zone too: it is exact for a stratified medium
 over flat ground (no ray theory, so no Airy transition at turning points, no caustic, no penumbra:
-docs/physics.md §16).
+docs/physics.md §18).
 
 Geometry: the integral is axisymmetric about the vertical through the source. A point at horizontal range r
 and height z above the ground gets the (r, z) answer whatever its azimuth; heights are grouped to
@@ -21,9 +21,10 @@ pressure, alpha the ISO 9613-1 coefficient (dB/m) and R the straight source-poin
 
 The integral's top (:func:`wave_top_height`): above every point (2 x the highest + 20 m), at least
 ``TOP_WAVELENGTHS`` wavelengths (the absorbing layer, half as thick, must be many wavelengths deep to
-absorb; 120 m at 100 Hz is converged, 60 m is not), above the turning height of the highest ray that comes
-back to the ground within the largest range (downward refraction, 2 x + 20 m: 1.25 x left 4 dB errors at 500 Hz), and above the limiting
-ray at that range (upward refraction, the shadow model's rule). The result must not depend on it
+absorb; 120 m at 100 Hz is converged, 60 m is not), above the vertex of the highest ray that comes back
+to the ground within the largest range (downward refraction: 2 x its height + 20 m; 1.25 x left errors of
+up to 4 dB at 500 Hz for the log profile), and above the limiting ray at that range (upward refraction, the
+shadow model's rule). The result must not depend on it
 (tests/fields/test_wave_field_gfpe.py checks a doubled top).
 """
 

@@ -1,0 +1,116 @@
+"""``field.wave_model`` (scenes/field_models.py) and the wave stage's cost (scenes/cost.py): "on" is refused,
+naming the field, where the wavenumber integral cannot apply (terrain, buildings, ground zones, a reflecting
+top, a range-dependent profile or wind, a directional source, an incoherent map); "auto" takes the bands
+lowest first while their estimated seconds fit WAVE_AUTO_MAX_SECONDS and none in homogeneous air without
+wind; an expensive "on" gets a budget line naming field.wave_model."""
+
+from __future__ import annotations
+
+import copy
+
+import pytest
+from pydantic import ValidationError
+
+from bentray.engine.acoustics.wavenumber import ffp_cells
+from bentray.scenes.cost import (
+    WAVE_AUTO_MAX_SECONDS,
+    WAVE_SECONDS_PER_CELL,
+    CostLimits,
+    cost_problems,
+    estimate_cost,
+    wave_blockers,
+    wave_cost,
+)
+from bentray.scenes.schema import Job
+
+BASE = {
+    "name": "wave-schema",
+    "scene": {
+        "domain": {"min": [-500, -500, 0], "max": [1100, 500, 300]},
+        "ground": {"kind": "flat", "flow_resistivity": 200000.0},
+    },  # fmt: skip
+    "profile": {"kind": "log", "c0": 340.0, "b": 1.0, "z_g": 1.0},
+    "sources": [{"position": [0.0, 0.0, 2.0]}],
+    "rays": {"elevation_deg": {"min": -30, "max": 30, "count": 31}, "max_time_s": 2.0, "max_reflections": 2},
+    "field": {
+        "origin": [20, 0, 1.5],
+        "spacing": [2, 1, 1],
+        "shape": [491, 1, 1],
+        "frequencies_hz": [100, 500],
+        "mode": "coherent",
+    },  # fmt: skip
+    "outputs": ["field", "report"],
+}
+FOOTPRINT = {"footprints": [{"polygon": [[300, -20], [320, -20], [320, 20], [300, 20]], "height_m": 10.0}]}
+
+
+def _spec(**changes) -> dict:
+    spec = copy.deepcopy(BASE)
+    for path, value in changes.items():
+        node = spec
+        keys = path.split("__")
+        for k in keys[:-1]:
+            node = node[k]
+        node[keys[-1]] = value
+    return spec
+
+
+@pytest.mark.parametrize(
+    ("changes", "why"),
+    [
+        ({"scene__buildings": FOOTPRINT}, "buildings"),
+        ({"scene__top": {"kind": "reflect"}}, "reflect"),
+        ({"field__mode": "incoherent"}, "incoherent"),
+        (
+            {
+                "wind": {
+                    "kind": "ridge",
+                    "u_star": 0.5,
+                    "z_g": 0.1,
+                    "direction_deg": 0.0,
+                    "height_m": 30.0,
+                    "half_width_m": 200.0,
+                    "crest_x_m": 300.0,
+                }
+            },
+            "ridge",
+        ),  # fmt: skip
+        ({"profile": {"kind": "hot_spot"}}, "stratified"),
+    ],
+)
+def test_on_is_refused_naming_the_field_where_it_cannot_apply(changes, why):
+    ok = _spec(field__wave_model="on")
+    assert wave_blockers(Job.model_validate(ok)) == []
+    try:
+        spec = _spec(field__wave_model="on", **changes)
+        Job.model_validate(_spec(**changes))  # 'auto' accepts the same job (and skips the stage)
+    except ValidationError as exc:  # a variant this schema version rejects on its own grounds
+        pytest.skip(f"variant not valid here: {exc}")
+    with pytest.raises(ValidationError) as info:
+        Job.model_validate(spec)
+    text = str(info.value)
+    assert "field.wave_model" in text and why in text, text
+
+
+def test_auto_takes_the_bands_lowest_first_within_its_limit():
+    job = Job.model_validate(_spec(field__frequencies_hz=[63, 125, 250, 500, 1000, 2000, 4000, 8000]))
+    bands, seconds = wave_cost(job)
+    assert bands == [63.0, 125.0, 250.0, 500.0, 1000.0]  # 2 kHz would take the sum over the limit
+    assert sum(seconds) <= WAVE_AUTO_MAX_SECONDS
+    r_max = 1000.0 + 10.0
+    top = 0.3 * r_max + 20.0
+    assert seconds[3] == pytest.approx(ffp_cells(500.0, 340.0, 2.0, r_max, top) * WAVE_SECONDS_PER_CELL)
+    on = Job.model_validate(_spec(field__wave_model="on", field__frequencies_hz=[63, 1000, 8000]))
+    assert wave_cost(on)[0] == [63.0, 1000.0, 8000.0]
+    assert wave_cost(Job.model_validate(_spec(field__wave_model="off")))[0] == []
+    assert wave_cost(Job.model_validate(_spec(profile={"kind": "homogeneous"})))[0] == []  # nothing to correct
+    assert wave_cost(Job.model_validate(_spec(field__mode="incoherent")))[0] == []
+
+
+def test_an_expensive_on_is_refused_naming_the_field():
+    job = Job.model_validate(_spec(field__wave_model="on", field__frequencies_hz=[2000, 4000, 8000]))
+    assert estimate_cost(job, 2).wave_seconds > CostLimits().wave_seconds
+    lines = cost_problems(job, CostLimits())
+    assert any(line.startswith("field.wave_model: ") for line in lines), lines
+    cheap = Job.model_validate(_spec(field__wave_model="on"))
+    assert not any(line.startswith("field.wave_model") for line in cost_problems(cheap, CostLimits()))
