@@ -77,6 +77,7 @@ def _gfpe_job(n_el: int) -> dict[str, Any]:
             "frequencies_hz": [FREQ],
             "absorption": False,
             "mode": "coherent",
+            "wave_model": "off",  # this section times the beams (the wave stage would replace them here)
         },
         "outputs": ["field", "report"],
     }

@@ -50,6 +50,7 @@ def _run(f: float, turbulence: bool = False):
             "frequencies_hz": [f],
             "absorption": False,
             "mode": "coherent",
+            "wave_model": "off",  # this module checks the shadow stage on the beams (the wave stage: test_wave_field_*)
         },
         "outputs": ["field", "report"],
     }
