@@ -205,12 +205,6 @@ def stage_refractive_shadow(
     the integral there already holds the shadow's creeping waves, so this stage leaves those bands of the
     map alone unless turbulence is given (then it adds only the scattered part there); receivers keep all."""
     done = set(field_done_labels)
-    if done and field_arrays is not None and job.field is not None and done >= set(job.field.labels):
-        if job.turbulence is None and receivers is None:
-            log.stages["refractive_shadow"] = (
-                "skipped: the wave-field stage produced every band of the map (its integral includes the shadow)"
-            )
-            return None
     if field_arrays is None and receivers is None:
         log.stages["refractive_shadow"] = "skipped: no field and no receivers"
         return None
@@ -227,6 +221,12 @@ def stage_refractive_shadow(
             "turbulence given but unused" if job.turbulence is not None else "turbulence off"
         )
         return None
+    if done and field_arrays is not None and done >= set(job.field.labels):
+        if job.turbulence is None and receivers is None:
+            log.stages["refractive_shadow"] = (
+                "skipped: the wave-field stage produced every band of the map (its integral includes the shadow)"
+            )
+            return None
     solves = _mode_solves(job, wind, field_arrays, setup)
     if setting == "auto" and solves > SHADOW_AUTO_MAX_SOLVES:
         log.stages["refractive_shadow"] = (

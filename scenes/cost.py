@@ -37,6 +37,11 @@ elementary operations, with the formula stated where it is computed:
   high at 1 km; capped at 2 km as in the stage); 0 where no source can see
   upward refraction from the job alone (no wind and a homogeneous or downward-refracting profile), with
   ``field.refractive_shadow`` "off", or with "auto" above the stage's own limit (it then skips itself).
+- ``wave_seconds``: the wave-field stage (engine/wave_stage.py): per band it runs (:func:`wave_cost`: 'auto'
+  the bands lowest first within WAVE_AUTO_MAX_SECONDS, 'on' all, none where :func:`wave_blockers` says it
+  cannot apply), sources x azimuth bins x ``ffp_cells`` x WAVE_SECONDS_PER_CELL, the top 0.3 x range + 20 m
+  (at least 2 x the highest point + 20 m and 40 wavelengths); over ``CostLimits.wave_seconds`` a line naming
+  ``field.wave_model``.
 - ``mesh_seconds``: the media-mesh build (:func:`estimate_mesh`), ``cells x MESH_SECONDS_PER_CELL`` of
   the mesher the job gets (measured on a 2-core machine shared with other work, 2026-12-01,
   ``python -m bentray.engine.bench.mesh_time``: build time was proportional to the cell count, see
