@@ -154,6 +154,7 @@ def test_3d_grid_is_the_gfpe_r_z_answer_at_every_azimuth_and_height():
             assert np.ptp(tl[same]) <= 0.01, (rr, zz, tl[same])
 
 
+@pytest.mark.slow
 def test_two_sources_add_their_energies():
     """Several sources (mode semicoherent; coherent takes one source): TL of the two-source map = the energy
     sum of the one-source maps (each source's own field coherent, ground reflection included), SPL the sum of
