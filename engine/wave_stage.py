@@ -10,8 +10,9 @@ The integral is exact for a stratified medium over flat impedance ground (docs/p
 When (:func:`bentray.scenes.cost.wave_blockers`, :func:`bentray.scenes.cost.wave_cost`): ``field.wave_model``
 "auto" (default) where the scene is range-independent and the map is coherent or semicoherent, for the bands,
 lowest first, whose estimated seconds add up to at most WAVE_AUTO_MAX_SECONDS; "on" every band (a job it
-cannot apply to is refused at validation, naming the field); "off" never. Receivers keep the beams and
-eigenrays (their rows are not touched here).
+cannot apply to is refused at validation, naming the field); "off" never. Receivers (with a field in the
+job): their coherent columns in the stage's bands come from the wave field too (each source's |p|^2 summed),
+their incoherent columns keep the beams' energy sum, and the eigenray columns are the eigenrays'.
 
 Merge (:func:`bentray.engine.field_sources.combine`, mode "replace", weight 1): in the stage's bands, at every
 field point outside solids with k r >= MIN_KR from every source (nearer a source's vertical the beams stay),
@@ -31,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from bentray.engine.acoustics.wave_field import MIN_KR, wave_pressure
+from bentray.engine.acoustics.wave_field import MIN_KR, WaveField, wave_pressure
 from bentray.engine.acoustics.weighting import a_weighting_db
 from bentray.engine.diffraction.stage import _field_points, _ground
 from bentray.engine.field_sources import COMBINATION, NONE, WAVE, Contribution, combine
@@ -89,7 +90,13 @@ def stage_wave_field(
     pts = _field_points(job, field_arrays, ground_z)
     srcs = np.array([np.asarray(s.position, float) for s in job.sources])
     gz = float(ground_z(srcs[:1, :2])[0])
-    wf = wave_pressure(profile, srcs, pts, gz, sigma, f_all[use], wind, absorption=_absorption(spec))
+    with_rec = receivers is not None and setup.receivers_xyz is not None and bool(receivers.rows)
+    n_field = pts.shape[0]
+    if with_rec:  # one integral per band for the map and the receivers together
+        pts = np.concatenate([pts, np.asarray(setup.receivers_xyz, float)])
+    wf_all = wave_pressure(profile, srcs, pts, gz, sigma, f_all[use], wind, absorption=_absorption(spec))
+    wf = WaveField(wf_all.p[:, :, :n_field], wf_all.valid[:, :n_field], wf_all.z_top_m, wf_all.cells, wf_all.seconds)
+    pts = pts[:n_field]
     solid = np.asarray(field_arrays.arrays["inside_solid"], bool).reshape(-1)
     ok = wf.valid.all(axis=0) & ~solid
     n_f, n = f_all.size, pts.shape[0]
@@ -114,6 +121,9 @@ def stage_wave_field(
     field_arrays.arrays["field_source"] = code.reshape(field_arrays.grid.shape)
     counts = source_counts(code, solid)
     field_arrays.stats["field_source"] = counts
+    rec = None
+    if with_rec:
+        rec = _apply_receivers(receivers, setup, f_all, use, wf_all.p[:, :, n_field:], wf_all.valid[:, n_field:])
     seconds = time.perf_counter() - t0
     log.timings["wave_field"] = seconds
     beams_bands = [lab for lab, u in zip(labels_all, use, strict=True) if not u]
@@ -137,7 +147,37 @@ def stage_wave_field(
         "cells": wf.cells,
         "seconds": seconds,
         "field_source": counts,
+        "receivers": rec,
     }
+
+
+def _apply_receivers(
+    receivers: Any, setup: Any, f_all: np.ndarray, use: np.ndarray, p: np.ndarray, valid: np.ndarray
+) -> dict[str, Any]:
+    """The receivers' coherent columns (tl_coh_, spl_coh_, spl_a_coh) in the stage's bands from the wave field
+    (each source's |p|^2, summed over sources; the incoherent columns keep the beams' energy sum, so a row's
+    field_source becomes COMBINATION). p (S, F_use, P) complex, valid (S, P): the stage's integral at the
+    receivers; f_all (F,) the field's bands, ``use`` (F,) those the stage produced."""
+    from bentray.engine.field_sources import combine_receiver_rows
+
+    labels = [c[len("tl_inc_") : -2] for c in receivers.columns if c.startswith("tl_inc_")]
+    f_rec = np.asarray(receivers.stats["frequencies_hz"], float)
+    if not np.array_equal(f_rec, f_all):
+        return {"rows": 0, "bands_hz": [], "why": "the receivers' bands differ from the map's"}
+    ok = valid.all(axis=0)
+    n_f, n = f_rec.size, ok.size
+    rel = np.zeros((n_f, n))
+    rel[use] = (np.abs(p) ** 2).sum(axis=0)
+    powered = None
+    if setup.powers is not None:
+        powered = np.zeros((n_f, n))
+        pw = np.asarray(setup.powers, float)[:, use]
+        powered[use] = np.einsum("sfv,sf->fv", np.abs(p) ** 2, pw) / (4.0 * math.pi)
+    w = (use[:, None] & ok[None, :]).astype(float)
+    a_w = np.asarray(a_weighting_db(f_rec), float)
+    code = combine_receiver_rows(receivers.rows, labels, a_w, [Contribution(WAVE, rel, w, powered=powered)], [])
+    receivers.stats["field_source"] = source_counts(code)
+    return {"rows": int(np.count_nonzero(ok)), "bands_hz": [float(f) for f in f_rec[use]], "columns": "coherent"}
 
 
 def wave_cost_lowest(job: Any) -> float:

@@ -414,8 +414,8 @@ def wave_blockers(job: Any) -> list[str]:
 
 
 def _wave_boxes(job: Any) -> tuple[float, float]:
-    """(largest horizontal range from any source to the field's corners + 10 m, highest field point above the
-    domain bottom) in metres."""
+    """(largest horizontal range from any source to the field's corners or a receiver + 10 m, highest field
+    point above the domain bottom) in metres."""
     spec = job.field
     lo = [float(v) for v in spec.origin]
     hi = [o + (n - 1) * d for o, n, d in zip(spec.origin, spec.shape, spec.spacing, strict=True)]
@@ -423,6 +423,8 @@ def _wave_boxes(job: Any) -> tuple[float, float]:
     for src in job.sources:
         sx, sy = float(src.position[0]), float(src.position[1])
         r_max = max(r_max, *(math.hypot(x - sx, y - sy) for x in (lo[0], hi[0]) for y in (lo[1], hi[1])))
+        for rec in getattr(job, "receivers", None) or []:  # the stage evaluates the receivers too
+            r_max = max(r_max, math.hypot(rec.horizontal[0] - sx, rec.horizontal[1] - sy))
     z_hi = hi[2] if spec.heights == "above_ground" else hi[2] - float(job.scene.box.min[2])
     return r_max + 10.0, max(z_hi, 0.0)
 

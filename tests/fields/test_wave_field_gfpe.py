@@ -108,6 +108,7 @@ def test_default_field_matches_gfpe(name, f):
 
 # --- the 3D grid: axisymmetric about each source, the (r, z) answer at every azimuth and height ----------
 GRID_Z = (1.5, 6.0, 10.5)
+RECEIVERS = ((200.0, 0.0, 1.5), (0.0, -250.0, 6.0), (-300.0, 300.0, 10.5), (150.0, 150.0, 1.5))
 
 
 def _grid_spec(sources: list[list[float]], mode: str = "coherent", **field) -> dict:
@@ -121,6 +122,7 @@ def _grid_spec(sources: list[list[float]], mode: str = "coherent", **field) -> d
                  "azimuth_deg": {"min": 0.0, "max": 350.0, "count": 36}, "max_time_s": 1.6, "max_reflections": 3},
         "field": {"origin": [-300.0, -300.0, GRID_Z[0]], "spacing": [150.0, 150.0, 4.5], "shape": [5, 5, 3],
                   "frequencies_hz": [100.0], "absorption": False, "mode": mode, **field},
+        "receivers": [{"id": f"r{i}", "position": list(xyz)} for i, xyz in enumerate(RECEIVERS)],
         "outputs": ["field", "report"],
     }  # fmt: skip
     return spec
@@ -152,6 +154,16 @@ def test_3d_grid_is_the_gfpe_r_z_answer_at_every_azimuth_and_height():
         for zz in GRID_Z:
             same = off & (r == rr) & (z == zz)
             assert np.ptp(tl[same]) <= 0.01, (rr, zz, tl[same])
+    # receivers.csv: the coherent columns from the same integral (the grid point (150, 150, 1.5) included)
+    rows = out.receivers.rows
+    rr = np.array([np.hypot(x, y) for x, y, _ in RECEIVERS])
+    got = np.array([row["tl_coh_100hz"] for row in rows])
+    for row, (_, _, zz), r_i in zip(rows, RECEIVERS, rr, strict=True):
+        one = gfpe_tl(PROFILES["log_down"][1], 100.0, ZS, np.array([r_i]), np.array([zz]), flow_resistivity=GRASS)
+        assert abs(row["tl_coh_100hz"] - float(one[0, 0])) <= 0.5, (row, float(one[0, 0]))
+    at = int(np.flatnonzero((pts[:, 0] == 150.0) & (pts[:, 1] == 150.0) & (pts[:, 2] == 1.5))[0])
+    assert abs(got[3] - tl[at]) <= 1e-6
+    assert out.report["wave_field"]["receivers"]["rows"] == len(RECEIVERS)
 
 
 @pytest.mark.slow
