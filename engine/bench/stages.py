@@ -44,6 +44,7 @@ def stage_table(job_file: Path, rounds: int = 2) -> dict[str, list[float]]:
     from bentray.engine.run import prepare_medium, prepare_scene
     from bentray.engine.shadow_stage import stage_refractive_shadow
     from bentray.engine.stages import StageLog
+    from bentray.engine.wave_stage import stage_wave_field
     from bentray.scenes.schema import Job
 
     spec = json.loads(Path(job_file).read_text())
@@ -80,6 +81,7 @@ def stage_table(job_file: Path, rounds: int = 2) -> dict[str, list[float]]:
         for stage_name, stage_fn in (
             ("diffraction", stage_diffraction),
             ("terrain_screening", stage_terrain_screening),
+            ("wave_field", stage_wave_field),
             ("refractive_shadow", stage_refractive_shadow),
         ):
             _timed(rows, stage_name, partial(stage_fn, j, profile, wind, surfaces, setup, fa, rc, StageLog()))
