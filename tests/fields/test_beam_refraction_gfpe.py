@@ -18,7 +18,8 @@ mean coherent at 100 Hz), while the eigenrays themselves miss the GFPE by 4.8 dB
 over 60-980 m. The beam_weight of 5-25 there is several branches lumped in one group and summed (W > 1 is not
 divided); a per-branch normalisation was measured and did not help (5.24 dB at 100 Hz; docs/physics.md §11).
 The gap is ray theory's in a duct thinner than its Airy transition length (about 5 m at 100 Hz): a wave
-treatment is needed, not another beam sum.
+treatment is needed, not another beam sum. These jobs set ``field.wave_model`` "off" (the beams alone); the
+product's default field in these cases is the wave stage's (tests/fields/test_wave_field_gfpe.py: 0.04-0.11 dB).
 """
 
 from __future__ import annotations

@@ -114,3 +114,25 @@ def test_an_expensive_on_is_refused_naming_the_field():
     assert any(line.startswith("field.wave_model: ") for line in lines), lines
     cheap = Job.model_validate(_spec(field__wave_model="on"))
     assert not any(line.startswith("field.wave_model") for line in cost_problems(cheap, CostLimits()))
+
+
+def test_the_report_says_which_stage_gave_which_band_and_why():
+    """A coherent log-profile line to 1 km with a band over the 'auto' limit: 100 Hz from the wave stage, 4 kHz
+    from the beams, the report says both and why, and each point's field_source is 4 (combination); the same
+    job as an incoherent map skips the stage with its reason."""
+    from bentray.engine.field_sources import COMBINATION
+    from bentray.engine.run import run_job
+
+    small = {"rays": {"elevation_deg": {"min": -20, "max": 20, "count": 41}, "max_time_s": 3.2, "max_reflections": 3},
+             "field": {"origin": [100, 0, 1.5], "spacing": [100, 1, 1], "shape": [10, 1, 1],
+                       "frequencies_hz": [100, 4000], "mode": "coherent"}}  # fmt: skip
+    out = run_job(Job.model_validate(_spec(**small)))
+    wave = out.report["wave_field"]
+    assert wave["bands_hz"] == [100.0] and wave["beam_bands_hz"] == [4000.0], wave
+    stage = out.report["stages"]["wave_field"]
+    assert stage.startswith("ran: bands 100 Hz") and "4000 Hz keep the beams" in stage, stage
+    assert set(out.field.arrays["field_source"].ravel().tolist()) == {COMBINATION}
+    small["field"]["mode"] = "incoherent"
+    inc = run_job(Job.model_validate(_spec(**small)))
+    assert "wave_field" not in inc.report
+    assert inc.report["stages"]["wave_field"].startswith("skipped: the wave field is coherent")
