@@ -50,7 +50,8 @@ def test_inside_solid_is_nan_and_code_zero_and_spl() -> None:
     expected_a = 10 * np.log10(10 ** ((30 - 3.2) / 10) + 10 ** (30 / 10))
     assert arrays["spl_a"][0] == pytest.approx(expected_a)
     assert fs.counts(code, solid) == {
-        "none": 1, "geometric": 0, "diffracted": 2, "refractive_shadow": 0, "combination": 0, "inside_solid": 1
+        "none": 1, "geometric": 0, "diffracted": 2, "refractive_shadow": 0, "combination": 0, "wave": 0,
+        "inside_solid": 1,
     }  # fmt: skip
 
 
