@@ -73,19 +73,8 @@ def compare(job: Job, src: np.ndarray, el_deg: np.ndarray, az_deg: np.ndarray) -
     return launch_derivative_errors(job, media, profile, wind, src, el_deg, az_deg)
 
 
-NLINEAR_TETS = pytest.param(
-    "n_linear",
-    "tets",
-    marks=pytest.mark.xfail(
-        strict=True,
-        reason="open: one ray of the fan (el 0.5, az 20 deg) differs by 1.4e-3 (P) / 1.2e-4 (X) on tets; the other "
-        "six agree to 6e-9; the n-linear curve on slabs and terrain, and the circular curve on tets, agree",
-    ),
-)
-
-
 @pytest.mark.parametrize(
-    "curve, representation", [("circular", "slabs"), ("n_linear", "slabs"), ("circular", "tets"), NLINEAR_TETS]
+    "curve, representation", [("circular", "slabs"), ("n_linear", "slabs"), ("circular", "tets"), ("n_linear", "tets")]
 )
 def test_paraxial_curves_match_central_differences_downward_log(curve, representation):
     """A-LD log profile (downward refraction, several ground reflections per ray) on slabs (a gradient jump
