@@ -46,7 +46,7 @@ PAR_SIZE = 12
 # per-segment record ``seg`` (SEG_SIZE,): D_k at the start [0:6], d m0/dgamma_k [6:8] (m0 the traced quantity
 # the segment starts from), d g/dgamma_k [8:14] (g its gradient), d m0 - g.X_k [14:16], wind terms on [16]
 SEG_SIZE = 17
-WIND_FD_REL = 1e-5  # relative step of the wind model's directional differences (wind_terms)
+WIND_FD_REL = 1e-4  # relative step of the wind model's directional differences (wind_terms; 1e-5: rounding 1e-6)
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
@@ -209,7 +209,8 @@ def wind_terms(curve, c_ref, wind, cell_model, x, d, par, seg, work):
     traced quantity at x and gradient, its face planes, and the chord middle (mid_ok False: the gradient was
     taken at x). The chord middle x + (L/2) d moves with X_k, D_k and the chord length L to the first face f
     ahead: dL = -(m_f.X_k + L m_f.D_k)/(m_f.d). The wind model's own derivatives are central differences
-    along these directions (step WIND_FD_REL of the cell size): about 1e-10 relative.
+    along these directions (step WIND_FD_REL of the cell size; at 1e-5 their rounding put 1e-6 relative
+    noise on P_k along T in 2 mm slabs: docs/physics.md §10).
     work : (21,) scratch.
     """
     code, params, e = wind
