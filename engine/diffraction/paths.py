@@ -229,7 +229,7 @@ def _geometric(
         assert g_side is not None
         cos_t = (src[on, 2] - g_side[on] + rec[on, 2] - g_side[on]) / direct.length
         p = p * _q(f_hz, c_ref, side, cos_t, direct.length)
-    _apply_shadow(p, leg_fn, src[on], rec[on], rec_ground if ci == 2 else src_ground, f_hz)
+    _apply_shadow(p, leg_fn, src[on], rec[on], _subset(rec_ground if ci == 2 else src_ground, on), f_hz)
     out[:, on] = p
     return out
 

@@ -149,3 +149,20 @@ def test_downward_and_homogeneous_unchanged(b: float) -> None:
     new = edge_paths(EDGE, SRC, RECS, f, 340.0, GROUND, GROUND, ProfileLegs(_c_eff(b)), geometric=True)
     old = edge_paths(EDGE, SRC, RECS, f, 340.0, GROUND, GROUND, _plain_legs(b), geometric=True)
     np.testing.assert_array_equal(new, old)
+
+
+def test_per_point_ground_heights() -> None:
+    """Receiver grounds given per point (terrain): the geometric waves' legs use their own points' planes;
+    a receiver whose ground is lowered by 1 m (its legs end higher above their plane) is not quieter."""
+    f = np.array([500.0])
+    legs = ProfileLegs(_c_eff(-1.0))
+    flat = edge_paths(EDGE, SRC, RECS, f, 340.0, GROUND, GROUND, legs, geometric=True)
+    gz = np.zeros(len(XS))
+    low = GroundSide(gz - 1.0, GRASS)
+    lowered = edge_paths(EDGE, SRC, RECS, f, 340.0, GROUND, low, legs, geometric=True)
+    np.testing.assert_array_equal(flat, edge_paths(EDGE, SRC, RECS, f, 340.0, GROUND, GroundSide(gz, GRASS), legs,
+                                                   geometric=True))  # fmt: skip
+    assert np.all(np.isfinite(lowered))
+    d0, _ = leg_shadow(_c_eff(-1.0), np.broadcast_to(EDGE.point, RECS.shape), RECS, gz, f, GRASS)
+    d1, _ = leg_shadow(_c_eff(-1.0), np.broadcast_to(EDGE.point, RECS.shape), RECS, gz - 1.0, f, GRASS)
+    assert np.all(d1[d0 > 0] < d0[d0 > 0])
