@@ -55,7 +55,6 @@ H_MAX_M = 400.0  # limiting rays are tabulated to this height above the plane; e
 RAY_INTERVALS = 512  # limiting_ray's sqrt-height steps
 AZ_STEP_DEG = 2.0  # with wind: directions of the tabulated limiting rays (interpolated between)
 Z_STEP_M = 0.25  # plane heights sharing one column
-XY_STEP_M = 100.0  # range-dependent profiles: column positions sharing one column
 LAYER_ITERATIONS = 40  # fixed-point steps of the creeping layer's height
 
 
@@ -143,6 +142,22 @@ class _Column:
         return self.rates[key]
 
 
+_KEY_HEIGHTS = np.array([0.0, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, 128.0, 256.0])
+
+
+def _content_keys(
+    c_eff: Callable[[np.ndarray, np.ndarray], np.ndarray], b: np.ndarray, keys: np.ndarray, azimuthal: bool
+) -> np.ndarray:
+    """Keys (bin, c at _KEY_HEIGHTS rounded to 1e-7 m/s) of the columns (bin, z0, x, y) rows of keys."""
+    m = keys.shape[0]
+    ang = np.radians(b * AZ_STEP_DEG) if azimuthal else np.zeros(m)
+    e = np.repeat(np.column_stack([np.cos(ang), np.sin(ang)]), _KEY_HEIGHTS.size, axis=0)
+    pts = np.column_stack([np.repeat(keys[:, 2], _KEY_HEIGHTS.size), np.repeat(keys[:, 3], _KEY_HEIGHTS.size),
+                           (keys[:, 1][:, None] + _KEY_HEIGHTS[None, :]).ravel()])  # fmt: skip
+    c = np.asarray(c_eff(pts, e), float).reshape(m, _KEY_HEIGHTS.size)
+    return np.column_stack([b, np.round(c * 1e7)])
+
+
 def _column(
     c_eff: Callable[[np.ndarray, np.ndarray], np.ndarray], z0: float, x: float, y: float, ang: float
 ) -> _Column:
@@ -176,10 +191,11 @@ def leg_shadow(
     above H_MAX_M), and for a vertical leg.
 
     c_eff(points (M, 3) m, unit horizontal directions (M, 2)) -> (M,) m/s. Columns are shared:
-    stratified profiles use one column per plane height (rounded to Z_STEP_M), others the start point
-    rounded to XY_STEP_M; ``azimuthal`` (a wind): X and the rate are interpolated linearly between
-    directions AZ_STEP_DEG apart (no steps between neighbouring points). columns: the cache of columns,
-    filled here (one per job)."""
+    stratified profiles use one column per plane height (rounded to Z_STEP_M), others the column above
+    the end nearer its plane (the plane is its ground), shared by columns of the same sound speeds at
+    _KEY_HEIGHTS (a terrain-following profile: one column); ``azimuthal`` (a wind): X and the rate are
+    interpolated linearly between directions AZ_STEP_DEG apart (no steps between neighbouring points).
+    columns: the cache of columns, filled here (one per job)."""
     a_pts = np.atleast_2d(np.asarray(a_pts, float))
     b_pts = np.atleast_2d(np.asarray(b_pts, float))
     n = a_pts.shape[0]
@@ -199,14 +215,20 @@ def leg_shadow(
         bins = [(lo, 1.0 - wt), (lo + 1.0, wt)]
     else:
         bins = [(np.zeros(n), np.ones(n))]
-    zkey = np.round(z0 / Z_STEP_M) * Z_STEP_M
-    xy = np.zeros((n, 2)) if stratified else np.round(a_pts[:, :2] / XY_STEP_M) * XY_STEP_M
+    if stratified:
+        zkey = np.round(z0 / Z_STEP_M) * Z_STEP_M
+        xy = np.zeros((n, 2))
+    else:  # the column above the end nearer its plane, whose ground the plane is (terrain-following profiles)
+        zkey = z0
+        xy = np.where((ha <= hb)[:, None], a_pts[:, :2], b_pts[:, :2])
     span = np.zeros(n)
     rate = np.zeros((f_hz.size, n))
     idx = np.nonzero(ok)[0]
     cache = columns if columns is not None else {}
     for b, w in bins:
         keys = np.column_stack([b, zkey, xy])[idx]
+        if not stratified:  # columns with the same sound speeds share one entry (terrain-following: all)
+            keys = _content_keys(c_eff, b[idx], keys, azimuthal)
         uniq, inv = np.unique(keys, axis=0, return_inverse=True)
         inv = np.asarray(inv).ravel()
         for u, key in enumerate(uniq):
@@ -214,7 +236,12 @@ def leg_shadow(
             k = tuple(float(v) for v in key)
             col = cache.get(k)
             if col is None:
-                col = _column(c_eff, k[1], k[2], k[3], math.radians(k[0] * AZ_STEP_DEG) if azimuthal else 0.0)
+                first = (
+                    (k[1], k[2], k[3])
+                    if stratified
+                    else (float(zkey[sel[0]]), float(xy[sel[0], 0]), float(xy[sel[0], 1]))
+                )
+                col = _column(c_eff, *first, math.radians(k[0] * AZ_STEP_DEG) if azimuthal else 0.0)
                 cache[k] = col
             span[sel] += w[sel] * (col.ray.x_of_h(ha[sel]) + col.ray.x_of_h(hb[sel]))
             for fi, f in enumerate(f_hz):

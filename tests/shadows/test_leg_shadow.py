@@ -166,3 +166,27 @@ def test_per_point_ground_heights() -> None:
     d0, _ = leg_shadow(_c_eff(-1.0), np.broadcast_to(EDGE.point, RECS.shape), RECS, gz, f, GRASS)
     d1, _ = leg_shadow(_c_eff(-1.0), np.broadcast_to(EDGE.point, RECS.shape), RECS, gz - 1.0, f, GRASS)
     assert np.all(d1[d0 > 0] < d0[d0 > 0])
+
+
+def test_terrain_following_profile_uses_each_points_own_ground() -> None:
+    """A profile measured from the ground (AboveGround, terrain z = 100 + 0.1 y): legs along x at several y,
+    each receiver's plane its own ground, give the shadow distances of the flat case (the column is taken
+    above the end nearer its plane, not at a shared position whose ground differs)."""
+    from bentray.engine.ground_profile import AboveGround
+
+    prof = AboveGround(Log(340.0, -1.0, 1.0), lambda xy: 100.0 + 0.1 * np.asarray(xy)[:, 1], flat=False)
+
+    def c_eff(p, e):
+        return np.asarray(prof.sound_speed(p), float)
+
+    ys = np.repeat([0.0, 35.0, 170.0, 420.0], len(XS))
+    g0 = 100.0 + 0.1 * ys
+    rec = np.column_stack([np.tile(XS, 4), ys, g0 + ZR])
+    edge = np.column_stack([np.full(rec.shape[0], XB), ys, g0 + H])
+    f = np.array([500.0])
+    d_t, a_t = leg_shadow(c_eff, edge, rec, g0, f, GRASS, stratified=False)
+    flat_rec = np.column_stack([np.tile(XS, 4), ys, np.full(rec.shape[0], ZR)])
+    flat_edge = np.column_stack([np.full(rec.shape[0], XB), ys, np.full(rec.shape[0], H)])
+    d_f, a_f = leg_shadow(_c_eff(-1.0), flat_edge, flat_rec, np.zeros(rec.shape[0]), f, GRASS)
+    np.testing.assert_allclose(d_t, d_f, rtol=1e-9, atol=1e-6)
+    np.testing.assert_allclose(a_t, a_f, rtol=1e-6)
