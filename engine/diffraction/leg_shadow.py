@@ -187,8 +187,8 @@ def leg_shadow(
     over the planes z = z0 (N,) m at the bands f_hz (F,) Hz over Delany-Bazley ground (Pa s/m^2, None:
     rigid). A is None where no leg is in a shadow (every factor 1: the caller multiplies nothing).
     d is -inf (lit, no shadow counted) where the column has no limiting ray up to those heights
-    (downward refraction, a turning point below them), where an end lies on or below its plane (or
-    above H_MAX_M), and for a vertical leg.
+    (downward refraction, a turning point below them), where both ends lie on or below the plane or one
+    above H_MAX_M, and for a vertical leg; an end below the plane counts as on it (X = 0).
 
     c_eff(points (M, 3) m, unit horizontal directions (M, 2)) -> (M,) m/s. Columns are shared:
     stratified profiles use one column per plane height (rounded to Z_STEP_M), others the column above
@@ -203,9 +203,11 @@ def leg_shadow(
     f_hz = np.atleast_1d(np.asarray(f_hz, float))
     dxy = b_pts[:, :2] - a_pts[:, :2]
     h = np.hypot(dxy[:, 0], dxy[:, 1])
-    ha, hb = a_pts[:, 2] - z0, b_pts[:, 2] - z0
+    # an end on or below the plane (an edge point in a valley below the source's ground) counts as on it:
+    # X(0) = 0, continuous with the ends just above it
+    ha, hb = np.maximum(a_pts[:, 2] - z0, 0.0), np.maximum(b_pts[:, 2] - z0, 0.0)
     d = np.full(n, -np.inf)
-    ok = (h > 1e-9) & (ha > 0.0) & (hb > 0.0) & (np.maximum(ha, hb) < H_MAX_M)
+    ok = (h > 1e-9) & (np.maximum(ha, hb) > 0.0) & (np.maximum(ha, hb) < H_MAX_M)
     if not np.any(ok):
         return d, None
     az = np.degrees(np.arctan2(dxy[:, 1], dxy[:, 0]))
