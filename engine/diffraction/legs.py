@@ -24,7 +24,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["STRAIGHT_REL", "Legs", "circular_legs", "fit_linear_c", "straight_legs"]
+__all__ = ["STRAIGHT_REL", "Legs", "ProfileLegs", "circular_legs", "fit_linear_c", "straight_legs"]
 
 STRAIGHT_REL = 1e-9  # |g| |AB| / c below this: straight (relative sag ~ |g| |AB| / (8 c))
 N_FIT_SAMPLES = 9  # chord samples of the least-squares fit (the profile's curvature over one leg)
@@ -119,3 +119,39 @@ def fit_linear_c(
     var = ((dz - zm) ** 2).sum(axis=1)
     g = ((dz - zm) * (cs - cm)).sum(axis=1) / var
     return cm[:, 0] - g * zm[:, 0], g
+
+
+class ProfileLegs:
+    """The leg model of a job's profile: circular legs of the linear-c fit (:func:`fit_linear_c`,
+    :func:`circular_legs`), plus :meth:`shadow`, the refractive-shadow amplitude of a leg
+    (:mod:`.leg_shadow`). Called as a LegModel: (a (N, 3), b (N, 3)) m -> Legs.
+
+    c_eff(points (M, 3) m, unit horizontal directions (M, 2)) -> (M,) m/s: the profile plus the wind
+    along the direction; stratified: c_eff depends on the height alone (one limiting-ray column per
+    plane height); azimuthal: it depends on the direction (a wind)."""
+
+    def __init__(
+        self, c_eff: Callable[[np.ndarray, np.ndarray], np.ndarray], stratified: bool = True, azimuthal: bool = False
+    ) -> None:
+        self.c_eff = c_eff
+        self.stratified = stratified
+        self.azimuthal = azimuthal
+        self._rays: dict = {}
+
+    def __call__(self, a: np.ndarray, b: np.ndarray) -> Legs:
+        ca, g = fit_linear_c(self.c_eff, a, b)
+        return circular_legs(a, b, ca, g)
+
+    def shadow(
+        self, a: np.ndarray, b: np.ndarray, z0: np.ndarray | float, f_hz: np.ndarray, flow_resistivity: float | None
+    ) -> np.ndarray | None:
+        """(F, N) amplitude factor of legs a -> b ((N, 3) m, real end points) whose side's ground plane is
+        z = z0 (m, scalar or (N,)) with that flow resistivity (Pa s/m^2, None: rigid), at bands f_hz (F,)
+        Hz; None when no leg is in a refractive shadow (:mod:`.leg_shadow`)."""
+        from bentray.engine.diffraction.leg_shadow import leg_shadow
+
+        a = np.atleast_2d(np.asarray(a, float))
+        b = np.atleast_2d(np.asarray(b, float))
+        a, b = np.broadcast_arrays(a, b)
+        z = np.broadcast_to(np.asarray(z0, float), (a.shape[0],))
+        return leg_shadow(self.c_eff, a, b, z, f_hz, flow_resistivity, self.stratified, self.azimuthal, self._rays)[1]

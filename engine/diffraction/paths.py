@@ -18,6 +18,12 @@ wave once, from (S', R) when its ground point lies on the source side of the edg
 on the receiver side (the two are the same ray; (S', R') has no geometric ray). Face reflections of the
 wedge itself are left to the beams.
 
+A leg in a refractive shadow (upward refraction: its arc would dip below its side's ground plane, the
+plane of that side's images) is attenuated by the decay of the creeping wave along the ground between
+its tangent points (:mod:`bentray.engine.diffraction.leg_shadow`), the same factor for the direct and
+the image combination of that side, computed from the real end points; the leg model supplies it
+(``shadow``, :class:`bentray.engine.diffraction.legs.ProfileLegs`), straight legs have none.
+
 Results are per combination, so the caller sums them coherently (tones, coherent maps) or adds their
 energies (incoherent maps): ``field`` (4, F, N) complex, relative to the 1 m free-field amplitude.
 """
@@ -173,6 +179,8 @@ def edge_paths(
         if gr is not None:
             assert rec_ground is not None
             p *= _q(f_hz, c_ref, rec_ground, (e_pts[:, 2] - gr + rec[:, 2] - gr) / leg_b.length, leg_b.length)
+        _apply_shadow(p, leg_fn, src, e_pts, src_ground, f_hz)  # a leg in a refractive shadow: its creeping
+        _apply_shadow(p, leg_fn, e_pts, rec, rec_ground, f_hz)  # wave's decay (module docstring)
         if geometric and ci < 3:
             p += _geometric(edge, ci, s_pts, r_pts, leg, f_hz, c_ref, leg_fn, src, rec, gs, gr, src_ground, rec_ground)
         out[ci] = p
@@ -221,8 +229,25 @@ def _geometric(
         assert g_side is not None
         cos_t = (src[on, 2] - g_side[on] + rec[on, 2] - g_side[on]) / direct.length
         p = p * _q(f_hz, c_ref, side, cos_t, direct.length)
+    _apply_shadow(p, leg_fn, src[on], rec[on], _subset(rec_ground if ci == 2 else src_ground, on), f_hz)
     out[:, on] = p
     return out
+
+
+def _apply_shadow(
+    p: np.ndarray, leg_fn: LegModel, a: np.ndarray, b: np.ndarray, side: GroundSide | None, f_hz: np.ndarray
+) -> None:
+    """Multiply p (F, N) in place by the refractive-shadow amplitude of the legs a -> b ((N, 3) m, real end
+    points) over the side's ground plane (:mod:`bentray.engine.diffraction.leg_shadow`), when the leg
+    model has one (``shadow``: curved legs of an upward-refracting profile) and the side has a reflecting
+    ground; nothing otherwise (straight legs, downward refraction, lit legs: the values are untouched)."""
+    shadow = getattr(leg_fn, "shadow", None)
+    if shadow is None or side is None or not side.reflect or p.shape[-1] == 0:
+        return
+    z = np.broadcast_to(np.asarray(side.z, float), (p.shape[-1],))
+    amp = shadow(a, b, z, f_hz, side.flow_resistivity)
+    if amp is not None:
+        p *= amp
 
 
 def _images(side: GroundSide | None, pts: np.ndarray) -> list[tuple[np.ndarray, np.ndarray | None]]:
@@ -383,6 +408,8 @@ def double_edge_paths(
                     share[f] *= share_near_boundary(sh, inside, (float(k[f]) * dist_l) * a_min)
             p = 0.5 * d1 * d2 * np.exp(1j * k[:, None] * phase[None, :]) / np.sqrt(s1 * s2 * s3 * (s1 + s2 + s3))
             p *= share * seen[None, :]
+            _apply_shadow(p, leg_fn, src, q1, src_ground, f_hz)  # legs in a refractive shadow (module docstring)
+            _apply_shadow(p, leg_fn, q2, rec, rec_ground, f_hz)
             if gs is not None and lateral:
                 assert src_ground is not None
                 r2 = s1 + s2 + s3

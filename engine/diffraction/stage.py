@@ -43,7 +43,7 @@ from bentray.engine.acoustics.weighting import a_weighting_db
 from bentray.engine.constants import DIFFRACTION_LIT_ZONE_FRESNEL
 from bentray.engine.diffraction.edges import EDGE_BARRIER_TOP, EDGE_ROOF, Obstacle, SceneEdges, scene_edges
 from bentray.engine.diffraction.kernels import walls_blocking
-from bentray.engine.diffraction.legs import Legs, circular_legs, fit_linear_c, straight_legs
+from bentray.engine.diffraction.legs import ProfileLegs, straight_legs
 from bentray.engine.diffraction.paths import GroundSide, LegModel, double_edge_paths, edge_paths
 from bentray.engine.diffraction.wedge import edge_legs
 from bentray.engine.field_sources import DIFFRACTED, FIELD_SOURCE_TEXT, Contribution, combine, combine_receiver_rows
@@ -151,6 +151,7 @@ def _geometric(
     if np.any(ok):
         d = legs(s[ok], pts[ok])
         out[0][:, ok] = weight[ok] * np.exp(1j * k[:, None] * c_ref * d.time[None, :]) / d.length[None, :]
+        _shadow(out[0], ok, legs, s, pts, src_ground, f_hz)
     if src_ground.reflect:
         g = float(np.asarray(src_ground.z, float).reshape(-1)[0])
         img = src.copy()
@@ -169,9 +170,25 @@ def _geometric(
             gp = img[None, :] + t[:, None] * (pts[ok] - img[None, :])
             after = plan_crosses(src, gp)
             idx = np.nonzero(ok)[0]
-            out[1][:, idx[~after]] = wave[:, ~after]
-            out[2][:, idx[after]] = wave[:, after]
+            full = np.zeros((len(f_hz), pts.shape[0]), complex)
+            full[:, ok] = wave
+            _shadow(full, ok, legs, s, pts, src_ground, f_hz)
+            out[1][:, idx[~after]] = full[:, idx[~after]]
+            out[2][:, idx[after]] = full[:, idx[after]]
     return out
+
+
+def _shadow(
+    wave: np.ndarray, ok: np.ndarray, legs: LegModel, s: np.ndarray, pts: np.ndarray, side: GroundSide, f_hz: np.ndarray
+) -> None:
+    """wave[:, ok] (F, N) times the refractive-shadow amplitude of the direct legs s -> pts over the
+    source's ground plane (paths module docstring), when the leg model has one."""
+    shadow = getattr(legs, "shadow", None)
+    if shadow is None or not side.reflect or not np.any(ok):
+        return
+    amp = shadow(s[ok], pts[ok], side.z, f_hz, side.flow_resistivity)
+    if amp is not None:
+        wave[:, ok] *= amp
 
 
 def _side(edge_xy: np.ndarray, src: np.ndarray, centre: np.ndarray) -> int:
@@ -366,11 +383,12 @@ def _leg_model(profile: Any, wind: Any, c_ref: float) -> tuple[LegModel, str]:
             c = c + wind_along(code, params, p, np.column_stack([e, np.zeros(len(e))]))
         return c
 
-    def legs(a: np.ndarray, b: np.ndarray) -> Legs:
-        ca, g = fit_linear_c(c_eff, a, b)
-        return circular_legs(a, b, ca, g)
+    from bentray.engine.wind import WIND_LOG
 
-    return legs, "curved (circular rays of a linear-c fit per leg)"
+    stratified = bool(getattr(profile, "stratified", False)) and (code is None or code == WIND_LOG)
+    return ProfileLegs(
+        c_eff, stratified, code is not None
+    ), "curved (circular rays of a linear-c fit per leg; legs in a refractive shadow decay)"
 
 
 def _ground(job: Any, surfaces: SceneSurfaces | None) -> tuple[Callable[[np.ndarray], np.ndarray], float | None]:

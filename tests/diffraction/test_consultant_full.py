@@ -14,6 +14,12 @@ stated in the README (measured with ``/usr/bin/time -v bentray run scenes/exampl
 2026-12-02, load 8-11 on 2 cores): air points without a beam 42.8 / 35.8 / 93.7 %, without a level 0 in
 each condition, 56 of 56 facades with a level; wall 78 / 251 / 247 s (CPU 34 / 47 / 83 s), peak RSS
 0.40 / 1.96 / 2.02 GB; upward: the refractive-shadow stage 85 s for 9,877 shadow points (2 bands).
+With legs in a refractive shadow decaying (engine/diffraction/leg_shadow.py; measured 2026-12-02 with
+tests/diffraction/consultant_levels.py, load ~11): of the 5,352 points the diffraction stage models (5,344 in
+the profile's shadow), the diffracted level is below the shadow stage's own level at 4,721 (500 Hz) /
+4,808 (1 kHz), median 89 / 191 dB below (it was median 0.2 dB from homogeneous air, 60-150 dB above);
+final codes diffracted 337, refractive shadow 8,569, combination 477; still 0 air points without a
+level and 56 of 56 facades; upward wall 211 s (user 109 s, diffraction stage 99 s), peak RSS 2.02 GB.
 """
 
 from __future__ import annotations

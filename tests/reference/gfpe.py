@@ -107,6 +107,7 @@ def gfpe_pressure(
     layer_strength: float = 1.0,
     starter: str = "wide",
     return_grid: bool = False,
+    barrier: tuple[float, float] | None = None,
 ) -> np.ndarray | tuple[np.ndarray, GfpeGrid]:
     """Complex pressure re 1 m free field, shape (len(ranges_m), len(zr_m)).
 
@@ -126,6 +127,9 @@ def gfpe_pressure(
     layer_strength : A of the layer, 1/m (imaginary wavenumber at its top).
     starter : "wide" (default), "gaussian" or "second_order" (see module docstring).
     return_grid : also return the GfpeGrid actually used.
+    barrier : (range r_b, height h_b) m of a thin screen: the field is set to 0 below h_b at r_b (Salomons
+        ch. 10: a thin rigid barrier in the GFPE, valid for receivers at low angles behind it; dr is shortened
+        to put r_b on a step). Outputs at ranges before r_b ignore it.
     """
     ranges = np.asarray(ranges_m, float).ravel()
     zr = np.asarray(zr_m, float).ravel()
@@ -141,6 +145,10 @@ def gfpe_pressure(
     lam = c_ref / f_hz
     dz = lam / 10.0 if dz is None else float(dz)
     dr = 5.0 * lam if dr is None else float(dr)
+    if barrier is not None:
+        if not (barrier[0] > 0 and barrier[1] > 0):
+            raise ValueError("barrier range and height must be > 0 (m)")
+        dr = barrier[0] / np.ceil(barrier[0] / dr)
     if z_top is None:
         z_top = max(50.0, 3.0 * max(zs, zr.max()) + 10.0 * lam, 0.3 * ranges.max())
     layer = max(50.0 * lam, 30.0) if layer is None else float(layer)
@@ -250,6 +258,8 @@ def gfpe_pressure(
         while r_now + dr <= r_out + 1e-9 * dr:
             psi = step(psi)
             r_now += dr
+            if barrier is not None and abs(r_now - barrier[0]) <= 1e-6 * dr:
+                psi = np.where(z < barrier[1], 0.0, psi)
         psi_r = read(psi, r_out - r_now)
         out[idx] = psi_r * np.exp(1j * ka * r_out) / np.sqrt(r_out)
     grid = GfpeGrid(dz=dz, dr=dr, z_top=z_top, layer=layer, fft_len=m_len, n_z=n, c_ref=c_ref)
