@@ -15,7 +15,8 @@ below, 25 min on the loaded machine): normalising the beams per branch (gamma_ha
 branch slots, docs/physics.md §11) made it 1.33 dB (3.9 dB p95), so the speckle is not the groups' bookkeeping,
 and it is not the wind's paraxial state either: the exact derivatives of the chord-middle wind gradient grew
 beam tubes to 1e6-1e9 m/rad near the ground; beams now drop them (paraxial.drop_gradient_terms, tubes
-70-840 m/rad, docs/physics.md §10) and the map went from 1.23 to 1.21 dB only.
+70-840 m/rad, docs/physics.md §10) and the map went from 1.23 to 1.21 dB only. Nor is it the job's reflection
+cap (max_reflections 12: 1.29 dB, 3.9 dB p95) or the caustic floor (beam_min_width_m 5: 1.21 dB); open (§11).
 """
 
 from __future__ import annotations
