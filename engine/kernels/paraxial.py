@@ -273,6 +273,18 @@ def finish_terms(par, g, seg):
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
+def drop_gradient_terms(seg):
+    """Beams with wind: zero d g/dgamma_k (seg[8:14]), keep d m0 (after finish_terms; docs/physics.md §11).
+
+    The exact derivative of the chord-middle gradient makes the paraxial state of the per-cell model grow
+    exponentially near the ground in a log-law layer (|X_el| 1e6-1e9 m/rad after 1 km on the ridge map, where
+    the continuous medium's rays give 10-1,700 m/rad): beams take each cell's gradient as fixed, as they do
+    without wind. trace(paraxial=True) without beams keeps the exact terms."""
+    for i in range(6):
+        seg[8 + i] = 0.0
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
 def restart_dm(par, d, p_norm, n_new, seg):
     """restart with the segment record's d m0 (d n^2) in place of g.X_k: the parabolic restart with wind."""
     if not (p_norm > 0.0 and n_new > 0.0):

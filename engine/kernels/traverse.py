@@ -524,6 +524,8 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
                 pwork,
             )
             paraxial.finish_terms(par, g, seg)
+            if deposit_on:  # beams: each cell's wind gradient taken as fixed (docs/physics.md §11)
+                paraxial.drop_gradient_terms(seg)
         if par_on and parabolic:  # the segment restarts from this cell's model at x: p' = n'(x) d (§10)
             n_new = math.sqrt(m0)
             if wind_on:
