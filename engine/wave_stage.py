@@ -164,7 +164,7 @@ def _apply_receivers(
     f_rec = np.asarray(receivers.stats["frequencies_hz"], float)
     if not np.array_equal(f_rec, f_all):
         return {"rows": 0, "bands_hz": [], "why": "the receivers' bands differ from the map's"}
-    ok = valid.all(axis=0)
+    ok = np.asarray(valid.all(axis=0), bool)
     n_f, n = f_rec.size, ok.size
     rel = np.zeros((n_f, n))
     rel[use] = (np.abs(p) ** 2).sum(axis=0)

@@ -191,7 +191,7 @@ def refractive_shadow_energy(
     dxy = pts[:, :2] - src[None, :2]
     r = np.hypot(dxy[:, 0], dxy[:, 1])
     zr = pts[:, 2] - gz
-    creeping = np.zeros((n_f, n))
+    creeping_part = np.zeros((n_f, n))
     scattered = np.zeros((n_f, n))
     applies = np.zeros(n, bool)
     boundary = np.full(n, np.inf)
@@ -224,7 +224,7 @@ def refractive_shadow_energy(
                 energy, top, n_cells = _creeping_energy(
                     c_of_h, float(f), zs, r[idx], zr[idx], flow_resistivity_pa_s_m2, z_top_m
                 )
-                creeping[k, idx] = energy
+                creeping_part[k, idx] = energy
                 top_used, cells = max(top_used, top), cells + n_cells
             if first and with_creeping:
                 methods[k] = "wavenumber_integral"
@@ -233,8 +233,8 @@ def refractive_shadow_energy(
                 scattered[k, idx] = scattered_energy(float(f), slant, turbulence[0], turbulence[1], c_plain)
         first = False
     return ShadowField(
-        energy_rel=creeping + scattered,
-        creeping=creeping,
+        energy_rel=creeping_part + scattered,
+        creeping=creeping_part,
         scattered=scattered,
         applies=applies,
         boundary_range_m=boundary,
