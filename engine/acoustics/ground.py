@@ -419,6 +419,13 @@ def q_lookup(table: np.ndarray, grid: np.ndarray, mat: int, band: int, cos_theta
     Returns (Re Q, Im Q). mat and band must index the table (the caller checks them once per job).
     """
     i, tu, j, tr = _table_cell(grid, table.shape[2], table.shape[3], cos_theta, r)
+    return q_at_cell(table, mat, band, i, tu, j, tr)
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def q_at_cell(table: np.ndarray, mat: int, band: int, i: int, tu: float, j: int, tr: float):
+    """:func:`q_lookup` in a cell already found by :func:`_table_cell` (the cell depends on neither the
+    material nor the band: a caller looking up every band at one (cos th, R) finds it once)."""
     out_re = 0.0
     out_im = 0.0
     for part in range(2):

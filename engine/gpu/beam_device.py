@@ -1,7 +1,8 @@
 """Beam-field deposits on the device: the CPU's beam steps (engine/kernels/beams.py), accumulated with atomics.
 
 What runs here is only what differs from the CPU: the accumulation. The sample record (caustic count, amplitude,
-ground reflection factors: ``beams.sample_record`` / ``beams.sample_shift``), the search box of a chord
+ground reflection factors on a chord's first deposit: ``beams.sample_record`` / ``beams.sample_shift`` /
+``beams.chord_amplitudes``), the search box of a chord
 (``beams.chord_box``, ``beams.points_box``), a point's beam (``beams.point_beam_terms``: hat weight, intensity,
 travel time, foot interpolation) and its per-band terms (``beams.band_energy``, ``beams.band_coherent``) are the
 CPU's own CPU-jitted functions, which numba-cuda compiles as device functions (engine/gpu/kernel.py's docstring).
@@ -45,7 +46,9 @@ class BeamScratch(NamedTuple):
 
 @cuda.jit(device=True)
 def _add_atomic(grid, acc, chord, v, terms):
-    """``beams._accumulate`` with atomics into slot 0 (the device's one accumulator): the same per-band terms."""
+    """``beams._accumulate`` with atomics into slot 0 (the device's one accumulator): the same per-band terms
+    (the chord's amplitudes first computed where not yet, as on the CPU: ``beams.chord_amplitudes``)."""
+    beams.chord_amplitudes(chord)
     amp_a = chord[2]
     amp_b = chord[3]
     group = chord[4]
@@ -120,13 +123,38 @@ def ray_sample_device(beam, ray, x, tangent, time, arc, slow, par, refl, start_n
         launch_cos = refl[3]
         kmah = ray.ist[1]
         grid = beam.grid
+        tabs = beam.tabs
         if grid.mode != BEAM_OFF:
             group = beams.chord_group(grid.n_refl, n_refl, kmah)
-            chord = (ray.last, ray.cur, ray.amp_last, ray.amp_cur, group, kmah, launch_cos)
+            chord = (
+                ray.last,
+                ray.cur,
+                ray.amp_last,
+                ray.amp_cur,
+                group,
+                kmah,
+                launch_cos,
+                tabs,
+                refl[1],
+                refl[2],
+                ray.amp0,
+            )
             reached = _deposit_chord_atomic(grid, beam.acc, chord, ray.work, ray.terms)
         if beam.pts.xyz.shape[0] > 0:
             group = beams.chord_group(beam.p_grid.n_refl, n_refl, kmah)
-            chord = (ray.last, ray.cur, ray.amp_last, ray.amp_cur, group, kmah, launch_cos)
+            chord = (
+                ray.last,
+                ray.cur,
+                ray.amp_last,
+                ray.amp_cur,
+                group,
+                kmah,
+                launch_cos,
+                tabs,
+                refl[1],
+                refl[2],
+                ray.amp0,
+            )
             reached += _deposit_points_atomic(beam.p_grid, beam.p_acc, beam.pts, chord, ray.work, ray.terms)
     beams.sample_shift(ray)
     return reached

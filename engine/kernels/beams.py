@@ -39,11 +39,13 @@ from typing import NamedTuple
 import numba as nb
 import numpy as np
 
-from bentray.engine.acoustics.ground import q_lookup
+from bentray.engine.acoustics.ground import _table_cell, q_at_cell
 from bentray.engine.constants import NJIT_FLAGS
 
 # Sample record layout (float64): position, unit tangent, time, arc, X1, X2, P1, P2, slowness 1/c,
-# sign of det[X1, X2, T] at the sample (caustic detection), group index of the chord that ends here.
+# sign of det[X1, X2, T] at the sample (caustic detection), the ray's reflection count there and whether the
+# sample's per-band amplitude (BeamRay.amp_last / amp_cur) has been computed (1.0) or not yet (0.0): amplitudes
+# are computed when a chord first deposits (:func:`chord_amplitudes`), most samples never need them.
 S_X = 0
 S_T = 3
 S_TIME = 6
@@ -54,7 +56,9 @@ S_P1 = 14
 S_P2 = 17
 S_SLOW = 20
 S_JSIGN = 21
-SAMPLE_SIZE = 22
+S_NREFL = 22
+S_AMP = 23
+SAMPLE_SIZE = 24
 
 BEAM_OFF = 0
 BEAM_COHERENT = 1
@@ -230,6 +234,26 @@ def _half_width(sample, dg1, dg2, w_min):
     return max(math.sqrt(n1) * dg1, w_min) + max(math.sqrt(n2) * dg2, w_min)
 
 
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _reach_bound(sa, sb, dg1, dg2, w_min):
+    """An upper bound of :func:`chord_reach` without square roots (the 1-norm of X_k bounds its 2-norm; 0.1 %
+    and 1 nm of margin cover the rounding of both): the quick test that skips the exact reach of a chord far
+    from every point."""
+    a1 = abs(sa[S_X1]) + abs(sa[S_X1 + 1]) + abs(sa[S_X1 + 2])
+    a2 = abs(sa[S_X2]) + abs(sa[S_X2 + 1]) + abs(sa[S_X2 + 2])
+    b1 = abs(sb[S_X1]) + abs(sb[S_X1 + 1]) + abs(sb[S_X1 + 2])
+    b2 = abs(sb[S_X2]) + abs(sb[S_X2 + 1]) + abs(sb[S_X2 + 2])
+    r = max(max(a1 * dg1, w_min) + max(a2 * dg2, w_min), max(b1 * dg1, w_min) + max(b2 * dg2, w_min))
+    return 1.001 * r + 1e-9
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _misses(lo, hi, origin, spacing, n):
+    """True when no grid coordinate origin + i spacing (0 <= i < n) lies in [lo, hi] (the span tested
+    without the integer conversion of :func:`_index_range`)."""
+    return hi < origin or lo > origin + (n - 1) * spacing
+
+
 @nb.njit(**NJIT_FLAGS)
 def _index_range(lo, hi, origin, spacing, n):
     """Grid indices [i0, i1] whose coordinate lies in [lo, hi] (empty when i0 > i1)."""
@@ -396,6 +420,7 @@ def _point_beam(grid, acc, slot, chord, px, py, pz, v, scratch, terms):
     the point or its hat weight is zero. scratch, terms : work arrays of :func:`point_beam_terms`."""
     if not point_beam_terms(grid, chord, px, py, pz, scratch, terms):
         return False
+    chord_amplitudes(chord)
     _accumulate(grid, acc, slot, chord[2], chord[3], chord[4], chord[5], v, terms)
     return True
 
@@ -410,10 +435,22 @@ def chord_reach(grid, sa, sb):
 @nb.njit(**NJIT_FLAGS)
 def chord_box(grid, sa, sb):
     """Grid columns a chord may reach: (i0, i1, j0, j1, z_lo, z_hi), index ranges in x and y (inclusive,
-    empty when i0 > i1) and the height range (m) whose points are searched in each column."""
-    reach = chord_reach(grid, sa, sb)
+    empty when i0 > i1) and the height range (m) whose points are searched in each column. A chord whose
+    bounding box, widened by a bound of its reach, misses the grid's columns returns an empty range at once."""
     nx = grid.shape[0]
     ny = grid.shape[1]
+    bound = _reach_bound(sa, sb, grid.dgamma[0], grid.dgamma[1], grid.w_min)
+    if _misses(
+        min(sa[S_X], sb[S_X]) - bound, max(sa[S_X], sb[S_X]) + bound, grid.origin[0], grid.spacing[0], nx
+    ) or _misses(
+        min(sa[S_X + 1], sb[S_X + 1]) - bound,
+        max(sa[S_X + 1], sb[S_X + 1]) + bound,
+        grid.origin[1],
+        grid.spacing[1],
+        ny,
+    ):
+        return 1, 0, 1, 0, 0.0, -1.0
+    reach = chord_reach(grid, sa, sb)
     i0, i1 = _index_range(
         min(sa[S_X], sb[S_X]) - reach, max(sa[S_X], sb[S_X]) + reach, grid.origin[0], grid.spacing[0], nx
     )
@@ -433,11 +470,12 @@ def chord_box(grid, sa, sb):
 def deposit_chord(grid, acc, slot, chord, scratch, terms):
     """Add the beam of the chord from sample ``sa`` to sample ``sb`` to every grid point it owns.
 
-    chord : tuple (sa, sb, amp_a, amp_b, group, kmah, launch_cos): sa, sb (SAMPLE_SIZE,) sample records;
-    amp_a, amp_b (2, F) complex amplitude factor per band at the two samples (reflection coefficients,
-    absorption; re in row 0, im in row 1); group, the arrival group of the chord; kmah, caustics passed
-    (the amplitude turns by (-i)^kmah, time factor exp(-i w t)); launch_cos, cos(launch elevation)
-    (I / I_1m = launch_cos / J). scratch (POINT_SCRATCH,), terms (PB_SIZE,) : the caller's work arrays.
+    chord : tuple (sa, sb, amp_a, amp_b, group, kmah, launch_cos, tabs, refl_cos, refl_mat, amp0): sa, sb
+    (SAMPLE_SIZE,) sample records; amp_a, amp_b (2, F) complex amplitude factor per band at the two samples
+    (reflection coefficients, absorption; re in row 0, im in row 1), filled on the chord's first deposit from
+    tabs, refl_cos, refl_mat and amp0 (:func:`chord_amplitudes`); group, the arrival group of the chord; kmah,
+    caustics passed (the amplitude turns by (-i)^kmah, time factor exp(-i w t)); launch_cos, cos(launch
+    elevation) (I / I_1m = launch_cos / J). scratch (POINT_SCRATCH,), terms (PB_SIZE,) : the caller's work arrays.
     Returns the number of grid points that received a contribution.
     """
     i0, i1, j0, j1, z_lo, z_hi = chord_box(grid, chord[0], chord[1])
@@ -558,20 +596,48 @@ def new_ray(n_f):
 @nb.njit(**NJIT_FLAGS)
 def _amplitude(tabs, arc, n_refl, refl_cos, refl_mat, out):
     """Per-band amplitude factor at arc length ``arc``: product of Q over the ray's reflections times
-    exp(-alpha s / 2) (no caustic phase: see deposit_chord's kmah)."""
+    exp(-alpha s / 2) (no caustic phase: see deposit_chord's kmah). Each reflection's table cell
+    (two logarithms) is found once for all bands; the products are formed in the same order as one
+    ``q_lookup`` per band and reflection would (the same numbers)."""
     n_f = out.shape[1]
     for f in range(n_f):
-        a = math.exp(-0.5 * tabs.alpha[f] * arc)
-        re = a
-        im = 0.0
-        for j in range(min(n_refl, refl_cos.shape[0])):
-            mat = refl_mat[j]
-            if mat <= 0:
-                continue
-            qr, qi = q_lookup(tabs.q_table, tabs.q_grid, mat, f, refl_cos[j], arc)
-            re, im = re * qr - im * qi, re * qi + im * qr
-        out[0, f] = re
-        out[1, f] = im
+        out[0, f] = math.exp(-0.5 * tabs.alpha[f] * arc)
+        out[1, f] = 0.0
+    n_cos = tabs.q_table.shape[2]
+    n_r = tabs.q_table.shape[3]
+    for j in range(min(n_refl, refl_cos.shape[0])):
+        mat = refl_mat[j]
+        if mat <= 0:
+            continue
+        ci, tu, cj, tr = _table_cell(tabs.q_grid, n_cos, n_r, refl_cos[j], arc)
+        for f in range(n_f):
+            qr, qi = q_at_cell(tabs.q_table, mat, f, ci, tu, cj, tr)
+            re = out[0, f]
+            im = out[1, f]
+            out[0, f] = re * qr - im * qi
+            out[1, f] = re * qi + im * qr
+
+
+@nb.njit(**NJIT_FLAGS)
+def _sample_amplitude(tabs, sample, amp, refl_cos, refl_mat, amp0):
+    """The per-band amplitude (2, F) of a sample record into ``amp``, unless already there (sample[S_AMP]):
+    Q of the sample's reflections (its S_NREFL; the ray's reflection arrays only grow), absorption to its
+    arc length, the source's directivity amp0 (x 1.0 exactly when omnidirectional)."""
+    if sample[S_AMP] != 0.0:
+        return
+    _amplitude(tabs, sample[S_ARC], int(sample[S_NREFL]), refl_cos, refl_mat, amp)
+    for f in range(amp0.shape[0]):
+        amp[0, f] *= amp0[f]
+        amp[1, f] *= amp0[f]
+    sample[S_AMP] = 1.0
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def chord_amplitudes(chord):
+    """Fill the amplitudes of both samples of a chord (deposit_chord's tuple) where not yet computed: called
+    before a chord's first term is accumulated, so a chord that reaches no point costs no amplitude."""
+    _sample_amplitude(chord[7], chord[0], chord[2], chord[8], chord[9], chord[10])
+    _sample_amplitude(chord[7], chord[1], chord[3], chord[8], chord[9], chord[10])
 
 
 class Beam(NamedTuple):
@@ -589,9 +655,10 @@ class Beam(NamedTuple):
 
 @nb.njit(**NJIT_FLAGS)
 def sample_record(beam, ray, x, tangent, time, arc, slow, par, refl, start_new):
-    """First half of :func:`ray_sample`: fill ``ray.cur`` (caustic count, amplitudes); True when the chord
+    """First half of :func:`ray_sample`: fill ``ray.cur`` (caustic count; amplitudes later, on demand:
+    :func:`chord_amplitudes`); True when the chord
     ``ray.last`` -> ``ray.cur`` is to be deposited (the caller deposits it, then calls :func:`sample_shift`)."""
-    n_refl, refl_cos, refl_mat, launch_cos = refl
+    n_refl = refl[0]
     cur = ray.cur
     for i in range(3):
         cur[S_X + i] = x[i]
@@ -611,10 +678,8 @@ def sample_record(beam, ray, x, tangent, time, arc, slow, par, refl, start_new):
             ray.ist[1] += 1
         ray.ist[2] = sign
     cur[S_JSIGN] = sign
-    _amplitude(beam.tabs, arc, n_refl, refl_cos, refl_mat, ray.amp_cur)
-    for f in range(ray.amp0.shape[0]):  # source directivity (x 1.0 exactly when omnidirectional)
-        ray.amp_cur[0, f] *= ray.amp0[f]
-        ray.amp_cur[1, f] *= ray.amp0[f]
+    cur[S_NREFL] = n_refl
+    cur[S_AMP] = 0.0  # the amplitudes follow when a chord ending or starting here deposits (chord_amplitudes)
     return ray.ist[0] != 0 and not start_new
 
 
@@ -623,7 +688,8 @@ def sample_shift(ray):
     """Second half of :func:`ray_sample`: the current sample becomes the last one."""
     for i in range(SAMPLE_SIZE):
         ray.last[i] = ray.cur[i]
-    for f in range(ray.amp_cur.shape[1]):
+    n_copy = ray.amp_cur.shape[1] if ray.cur[S_AMP] != 0.0 else 0  # amplitudes not computed: nothing to move
+    for f in range(n_copy):
         ray.amp_last[0, f] = ray.amp_cur[0, f]
         ray.amp_last[1, f] = ray.amp_cur[1, f]
     ray.ist[0] = 1
@@ -645,13 +711,38 @@ def ray_sample(beam, slot, ray, x, tangent, time, arc, slow, par, refl, start_ne
         launch_cos = refl[3]
         kmah = ray.ist[1]
         grid = beam.grid
+        tabs = beam.tabs
         if grid.mode != BEAM_OFF:
             group = chord_group(grid.n_refl, n_refl, kmah)
-            chord = (ray.last, ray.cur, ray.amp_last, ray.amp_cur, group, kmah, launch_cos)
+            chord = (
+                ray.last,
+                ray.cur,
+                ray.amp_last,
+                ray.amp_cur,
+                group,
+                kmah,
+                launch_cos,
+                tabs,
+                refl[1],
+                refl[2],
+                ray.amp0,
+            )
             reached = deposit_chord(grid, beam.acc, slot, chord, ray.work, ray.terms)
         if beam.pts.xyz.shape[0] > 0:
             group = chord_group(beam.p_grid.n_refl, n_refl, kmah)
-            chord = (ray.last, ray.cur, ray.amp_last, ray.amp_cur, group, kmah, launch_cos)
+            chord = (
+                ray.last,
+                ray.cur,
+                ray.amp_last,
+                ray.amp_cur,
+                group,
+                kmah,
+                launch_cos,
+                tabs,
+                refl[1],
+                refl[2],
+                ray.amp0,
+            )
             reached += deposit_points(beam.p_grid, beam.p_acc, beam.pts, slot, chord, ray.work, ray.terms)
     sample_shift(ray)
     return reached
