@@ -156,7 +156,7 @@ def stage_table(job_file: Path, rounds: int = 2, save: Path | None = None) -> di
     rows["deposits"] = [hits, 0.0]
     rows["samples"] = [samples, 0.0]
     if save is not None:
-        np.savez(save, **arrays)
+        np.savez(save, **arrays)  # type: ignore[arg-type]  # numpy stubs type the kwargs as allow_pickle
     return rows
 
 
