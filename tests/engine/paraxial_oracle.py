@@ -8,12 +8,59 @@ from typing import Any
 import numpy as np
 
 from bentray.engine.constants import STATUS_EXITED
+from bentray.engine.media import build_media, build_terrain_media
+from bentray.engine.stages import load_surfaces
 from bentray.engine.tracer import trace
 from bentray.engine.wind import check_wind
+from bentray.scenes.profile_models import profile_from_spec
 from bentray.scenes.schema import Job
+from bentray.scenes.wind_models import wind_from_spec
 
 H = 1e-6  # rad, launch-angle step of the central differences (also H/2 and H/4)
 CONVERGED = 1e-6  # relative |R1 - R2| above which the central differences do not resolve a derivative
+
+
+def paraxial_job(
+    profile: dict, curve: str, representation: str, *, terrain: str | None = None, wind: dict | None = None
+) -> Job:
+    """The paraxial tests' job: source 2 m over flat reflecting ground in a 620 x 400 x 150 m box (or a
+    built-in terrain scene), the given profile, curve, media representation and optional wind."""
+    scene: dict = {"domain": {"min": [-20, -200, 0], "max": [600, 200, 150]}, "ground": {"kind": "flat"}}
+    if terrain is not None:
+        scene = {"builtin": terrain}
+    spec = {
+        "name": "paraxial",
+        "scene": scene,
+        "profile": profile,
+        "sources": [{"position": [0.0, 0.0, 2.0]}],
+        "rays": {"elevation_deg": {"min": -5, "max": 5, "count": 3}, "max_time_s": 30.0, "max_reflections": 20},
+        "solver": {"curve": curve, "representation": representation},
+        "outputs": ["report"],
+    }
+    if wind is not None:
+        spec["wind"] = wind
+    return Job.model_validate(spec)
+
+
+def job_media(job: Job) -> tuple[Any, Any, Any]:
+    """(media, profile, wind) of a paraxial_job: terrain media for a terrain scene, else the flat media."""
+    profile = profile_from_spec(job.profile)
+    lo = np.asarray(job.scene.box.min, float)
+    hi = np.asarray(job.scene.box.max, float)
+    wind = wind_from_spec(job.wind) if job.wind is not None else None
+    surfaces = load_surfaces(job)
+    curve = job.solver.curve
+    if surfaces is not None:
+        media = build_terrain_media(profile, curve, job.solver, lo, hi, surfaces, top=job.scene.top.kind)
+    else:
+        media = build_media(profile, curve, job.solver, lo, hi, ground="reflect", top=job.scene.top.kind, wind=wind)
+    return media, profile, wind
+
+
+def compare(job: Job, src: np.ndarray, el_deg: np.ndarray, az_deg: np.ndarray) -> dict:
+    """Carried derivatives against central differences of launches (launch_derivative_errors)."""
+    media, profile, wind = job_media(job)
+    return launch_derivative_errors(job, media, profile, wind, src, el_deg, az_deg)
 
 
 def _directions(el: np.ndarray, az: np.ndarray) -> np.ndarray:

@@ -20,59 +20,20 @@ import numpy as np
 import pytest
 
 import bentray  # noqa: F401
-from bentray.engine.media import build_media, build_terrain_media
 from bentray.engine.stages import load_surfaces
 from bentray.engine.tracer import trace
-from bentray.scenes.profile_models import profile_from_spec
 from bentray.scenes.schema import Job
-from bentray.scenes.wind_models import wind_from_spec
-from tests.engine.paraxial_oracle import launch_derivative_errors
+from tests.engine.paraxial_oracle import compare, job_media, paraxial_job
 
 TOL = 1e-6  # relative agreement asked by the issue (measured: see test docstrings)
 
 
 def _job(profile: dict, representation: str, *, terrain: str | None = None, wind: dict | None = None) -> Job:
-    scene: dict = {"domain": {"min": [-20, -200, 0], "max": [600, 200, 150]}, "ground": {"kind": "flat"}}
-    if terrain is not None:
-        scene = {"builtin": terrain}
-    spec = {
-        "name": "paraxial",
-        "scene": scene,
-        "profile": profile,
-        "sources": [{"position": [0.0, 0.0, 2.0]}],
-        "rays": {"elevation_deg": {"min": -5, "max": 5, "count": 3}, "max_time_s": 30.0, "max_reflections": 20},
-        "solver": {"curve": "parabolic", "representation": representation},
-        "outputs": ["report"],
-    }
-    if wind is not None:
-        spec["wind"] = wind
-    return Job.model_validate(spec)
-
-
-def _media(job: Job):
-    profile = profile_from_spec(job.profile)
-    lo = np.asarray(job.scene.box.min, float)
-    hi = np.asarray(job.scene.box.max, float)
-    wind = wind_from_spec(job.wind) if job.wind is not None else None
-    surfaces = load_surfaces(job)
-    if surfaces is not None:
-        media = build_terrain_media(profile, "parabolic", job.solver, lo, hi, surfaces, top=job.scene.top.kind)
-    else:
-        media = build_media(
-            profile, "parabolic", job.solver, lo, hi, ground="reflect", top=job.scene.top.kind, wind=wind
-        )
-    return media, profile, wind
+    return paraxial_job(profile, "parabolic", representation, terrain=terrain, wind=wind)
 
 
 def _directions(el: np.ndarray, az: np.ndarray) -> np.ndarray:
     return np.column_stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
-
-
-def _compare(job: Job, src: np.ndarray, el_deg: np.ndarray, az_deg: np.ndarray) -> dict:
-    """Carried derivatives against Richardson-extrapolated central differences of launches
-    (tests/engine/paraxial_oracle.py)."""
-    media, profile, wind = _media(job)
-    return launch_derivative_errors(job, media, profile, wind, src, el_deg, az_deg)
 
 
 FAN_EL = np.array([-4.0, -2.0, -1.0, 0.5, 2.0, 4.0, 8.0])
@@ -85,7 +46,7 @@ def test_paraxial_matches_central_differences_downward_log(representation):
     """A-LD log profile (downward refraction: several ground reflections per ray) on slabs (one gradient
     jump per layer face) and on Delaunay tets (gradients jump at every face): exact derivatives."""
     job = _job(LOG_DOWN, representation)
-    out = _compare(job, np.array([0.0, 0.0, 2.0]), FAN_EL, FAN_AZ)
+    out = compare(job, np.array([0.0, 0.0, 2.0]), FAN_EL, FAN_AZ)
     assert out["compared"] >= 5, out
     assert out["reflections"] >= 5, out
     assert out["worst_rel"] < TOL, out
@@ -94,7 +55,7 @@ def test_paraxial_matches_central_differences_downward_log(representation):
 def test_paraxial_homogeneous_is_the_spherical_spreading():
     """Homogeneous air, no reflection: |X_el| = r, |X_az| = r cos el at the exit point (closed form)."""
     job = _job({"kind": "homogeneous", "c0": 340.0}, "uniform")
-    media, profile, _ = _media(job)
+    media, profile, _ = job_media(job)
     el = np.radians(np.array([5.0, 20.0, 40.0]))
     az = np.radians(np.array([0.0, 30.0, -60.0]))
     src = np.array([0.0, 0.0, 2.0])
@@ -124,7 +85,7 @@ def test_paraxial_matches_central_differences_over_terrain():
     lo = np.asarray(job.scene.box.min, float)
     hi = np.asarray(job.scene.box.max, float)
     src = np.array([lo[0] + 0.2 * (hi[0] - lo[0]), 0.5 * (lo[1] + hi[1]), 0.0])
-    media, _, _ = _media(job)
+    media, _, _ = job_media(job)
     # 3 m above the ground under the source
     from bentray.engine.mesh.terrain import terrain_height_function
 
@@ -132,6 +93,6 @@ def test_paraxial_matches_central_differences_over_terrain():
     src[2] = float(terrain_height_function(surfaces.terrain, lo, hi)(src[None, :2])[0]) + 3.0
     # azimuths off the terrain grid's lines: a ray along a triangle edge reflects off two different facets
     # on either side (a jump of the faceted terrain, not of the derivatives)
-    out = _compare(job, src, FAN_EL, FAN_AZ + 0.37)
+    out = compare(job, src, FAN_EL, FAN_AZ + 0.37)
     assert out["compared"] >= 4, out
     assert out["worst_rel"] < TOL, out

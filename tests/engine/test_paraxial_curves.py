@@ -24,12 +24,8 @@ import numpy as np
 import pytest
 
 import bentray  # noqa: F401
-from bentray.engine.media import build_media, build_terrain_media
 from bentray.engine.stages import load_surfaces
-from bentray.scenes.profile_models import profile_from_spec
-from bentray.scenes.schema import Job
-from bentray.scenes.wind_models import wind_from_spec
-from tests.engine.paraxial_oracle import launch_derivative_errors
+from tests.engine.paraxial_oracle import compare, paraxial_job
 
 TOL = 1e-6  # relative agreement asked by issue 12
 
@@ -40,51 +36,13 @@ FAN_EL = np.array([-4.0, -2.0, -1.0, 0.5, 2.0, 4.0, 8.0])
 FAN_AZ = np.array([0.0, 7.0, -11.0, 20.0, 3.0, -30.0, 15.0])
 
 
-def _job(profile: dict, curve: str, representation: str, *, terrain: str | None = None, wind: dict | None = None):
-    scene: dict = {"domain": {"min": [-20, -200, 0], "max": [600, 200, 150]}, "ground": {"kind": "flat"}}
-    if terrain is not None:
-        scene = {"builtin": terrain}
-    spec = {
-        "name": "paraxial-curves",
-        "scene": scene,
-        "profile": profile,
-        "sources": [{"position": [0.0, 0.0, 2.0]}],
-        "rays": {"elevation_deg": {"min": -5, "max": 5, "count": 3}, "max_time_s": 30.0, "max_reflections": 20},
-        "solver": {"curve": curve, "representation": representation},
-        "outputs": ["report"],
-    }
-    if wind is not None:
-        spec["wind"] = wind
-    return Job.model_validate(spec)
-
-
-def _media(job: Job):
-    profile = profile_from_spec(job.profile)
-    lo = np.asarray(job.scene.box.min, float)
-    hi = np.asarray(job.scene.box.max, float)
-    wind = wind_from_spec(job.wind) if job.wind is not None else None
-    surfaces = load_surfaces(job)
-    curve = job.solver.curve
-    if surfaces is not None:
-        media = build_terrain_media(profile, curve, job.solver, lo, hi, surfaces, top=job.scene.top.kind)
-    else:
-        media = build_media(profile, curve, job.solver, lo, hi, ground="reflect", top=job.scene.top.kind, wind=wind)
-    return media, profile, wind
-
-
-def compare(job: Job, src: np.ndarray, el_deg: np.ndarray, az_deg: np.ndarray) -> dict:
-    """Carried derivatives against central differences of launches (tests/engine/paraxial_oracle.py)."""
-    media, profile, wind = _media(job)
-    return launch_derivative_errors(job, media, profile, wind, src, el_deg, az_deg)
-
-
 @pytest.mark.parametrize(
     "curve, representation", [("circular", "slabs"), ("n_linear", "slabs"), ("circular", "tets"), ("n_linear", "tets")]
 )
 def test_paraxial_curves_match_central_differences_downward_log(curve, representation):
     """A-LD log profile (downward refraction, several ground reflections per ray) on slabs (a gradient jump
     at every layer face) and Delaunay tets (jumps at every face), traced with circular arcs / catenaries."""
-    out = compare(_job(LOG_DOWN, curve, representation), np.array([0.0, 0.0, 2.0]), FAN_EL, FAN_AZ)
+    out = compare(paraxial_job(LOG_DOWN, curve, representation), np.array([0.0, 0.0, 2.0]), FAN_EL, FAN_AZ)
     print(curve, representation, out)
     assert out["compared"] >= 5, out
     assert out["reflections"] >= 5, out
@@ -95,7 +53,7 @@ def test_paraxial_curves_match_central_differences_downward_log(curve, represent
 @pytest.mark.parametrize("curve", ["circular", "n_linear"])
 def test_paraxial_curves_match_central_differences_linear_c(curve):
     """Linear c (c = 340 + 0.1 z: downward refraction) on slabs: one circle per cell for the circular curve."""
-    out = compare(_job(LINEAR_DOWN, curve, "slabs"), np.array([0.0, 0.0, 2.0]), FAN_EL, FAN_AZ)
+    out = compare(paraxial_job(LINEAR_DOWN, curve, "slabs"), np.array([0.0, 0.0, 2.0]), FAN_EL, FAN_AZ)
     print(curve, "linear_c", out)
     assert out["compared"] >= 5, out
     assert out["reflections"] >= 3, out
@@ -105,7 +63,7 @@ def test_paraxial_curves_match_central_differences_linear_c(curve):
 @pytest.mark.parametrize("curve", ["circular", "n_linear"])
 def test_paraxial_curves_match_central_differences_over_terrain(curve):
     """The built-in ridge scene (terrain tets, reflections off sloping faces)."""
-    job = _job(LOG_DOWN, curve, "auto", terrain="ridge")
+    job = paraxial_job(LOG_DOWN, curve, "auto", terrain="ridge")
     lo = np.asarray(job.scene.box.min, float)
     hi = np.asarray(job.scene.box.max, float)
     src = np.array([lo[0] + 0.2 * (hi[0] - lo[0]), 0.5 * (lo[1] + hi[1]), 0.0])
@@ -130,7 +88,7 @@ def test_paraxial_curves_match_central_differences_with_wind(curve):
     noise on dn_k, i.e. on P_k along T, of the last segment (found cell by cell with NUMBA_DISABLE_JIT=1 on
     the circular ray el 2, az 3 deg: the oracle there is converged, |R1 - R2| = 1.6e-8; final error 1.03e-6
     at 1e-5, 4.0e-7 at 1e-4, 3.6e-7 at 1e-3)."""
-    out = compare(_job(LOG_DOWN, curve, "slabs", wind=LOG_WIND), np.array([0.0, 0.0, 2.0]), FAN_EL, FAN_AZ)
+    out = compare(paraxial_job(LOG_DOWN, curve, "slabs", wind=LOG_WIND), np.array([0.0, 0.0, 2.0]), FAN_EL, FAN_AZ)
     print(curve, "wind", out)
     assert out["compared"] >= 5, out
     assert out["reflections"] >= 10, out
