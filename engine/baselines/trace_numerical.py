@@ -654,7 +654,7 @@ def trace_rays_numerical(media, bounds, prm, paths, rays):
     integrators.make_media tuple; bounds : Bounds; prm : NumParams; paths : traverse.PathBuffers;
     rays : NumRays."""
     for i in nb.prange(rays.origins.shape[0]):
-        trace_one(media, bounds, prm, paths, rays, i)
+        trace_one(media, bounds, prm, paths, rays, np.int64(i))  # one signature (the prange index is uint64 too)
 
 
 def boundary_planes(

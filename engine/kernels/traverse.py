@@ -851,5 +851,8 @@ def trace_rays(mesh, prm, fld, paths, rays, n_slots, b_grid, b_acc, b_tabs, p_gr
     """
     n = rays.origins.shape[0]
     for slot in nb.prange(n_slots):
-        for i in range(slot, n, n_slots):
-            trace_one(mesh, prm, fld, paths, rays, i, slot, beams.Beam(b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts))
+        # int64, not the loop index itself: numba types the body once with an int64 index and again, in the
+        # parallel gufunc, with a uint64 one, and each signature compiled all of trace_one (~100 s each)
+        s = np.int64(slot)
+        for i in range(s, n, n_slots):
+            trace_one(mesh, prm, fld, paths, rays, i, s, beams.Beam(b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts))
