@@ -159,7 +159,8 @@ def _record_ray(mesh, wp, x, d, cell, ent, first):
 def _record(mesh, wp, origins, directions, start_cells, ent, counts):
     """Entry states of every ray's cells (mesh: CellMesh; wp: WalkParams), ray i in slots
     [i cap, (i + 1) cap) of ``ent`` (Entries); counts[i] = entries stored."""
-    for i in nb.prange(origins.shape[0]):
+    for k in nb.prange(origins.shape[0]):
+        i = np.int64(k)  # one signature of _record_ray: the prange index is uint64 in the parallel body
         x = origins[i].copy()
         d = directions[i] / math.sqrt(directions[i, 0] ** 2 + directions[i, 1] ** 2 + directions[i, 2] ** 2)
         counts[i] = _record_ray(mesh, wp, x, d, start_cells[i], ent, i * wp.cap)

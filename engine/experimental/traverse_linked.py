@@ -447,7 +447,8 @@ def trace_linked_rays(
     out_counts,
 ):
     """All rays in parallel (prange over rays); ray i owns its rows and path slice [i cap, (i + 1) cap)."""
-    for i in nb.prange(origins.shape[0]):
+    for k in nb.prange(origins.shape[0]):
+        i = np.int64(k)  # one signature of trace_linked_one: the prange index is uint64 in the parallel body
         trace_linked_one(
             planes,
             neighbours,
