@@ -126,3 +126,49 @@ def test_many_nodes_tend_to_the_energy_sum_of_the_arrivals():
     d_one = np.abs(-10 * np.log10(one.energy[0, 0]) - inc)
     assert d_many.mean() <= 0.5, (d_many.mean(), d_many.max())
     assert d_one.max() >= 3.0, d_one.max()
+
+
+def test_incoherent_map_and_receivers_through_run_job():
+    """The 3D grid job of tests/fields/test_wave_field_gfpe.py (log b = +1, grass, source 2 m, 5 x 5 x 3 points
+    150-424 m, heights 1.5 / 6 / 10.5 m, four receivers) as an incoherent map (the noise-map default) with
+    the default 'auto': the stage runs 100 Hz as an octave band average (7 nodes); every point off the
+    source's vertical is WAVE and equals the GFPE band average at its (r, z) (asserted 0.5 dB mean / 1.5 dB
+    max; measured in the assertion message), the receivers' tl_inc_ columns are the GFPE band average and
+    their tl_coh_ columns the GFPE at 100 Hz (0.5 dB each)."""
+    from bentray.engine.field_sources import WAVE
+    from bentray.engine.run import run_job
+    from bentray.scenes.schema import Job
+    from tests.fields.test_wave_field_gfpe import GRID_Z, RECEIVERS, _grid_spec
+
+    spec = _grid_spec([[0.0, 0.0, ZS]], "incoherent")
+    out = run_job(Job.model_validate(spec))
+    wave = out.report["wave_field"]
+    assert wave["bands_hz"] == [100.0] and wave["map"] == "band average (incoherent)", wave
+    assert wave["band_average"]["used_for"] == ["map", "receivers' incoherent columns"], wave
+    c_of_z = PROFILES["log_down"][1]
+    nodes, w = band_nodes(100.0)
+
+    def band_tl(ranges: np.ndarray, heights: np.ndarray) -> np.ndarray:
+        e = sum(wi * np.abs(gfpe_pressure(c_of_z, fi, ZS, ranges, heights, GRASS)) ** 2
+                for fi, wi in zip(nodes, w, strict=True))  # fmt: skip
+        return -10.0 * np.log10(e)
+
+    pts = out.field.grid.points()
+    tl = out.field.arrays["tl_100hz"].ravel()
+    code = out.field.arrays["field_source"].ravel()
+    r = np.round(np.hypot(pts[:, 0], pts[:, 1]), 6)
+    z = np.round(pts[:, 2], 6)
+    off = r > 0
+    assert np.all(code[off] == WAVE)
+    ranges = np.unique(r[off])
+    ref = band_tl(ranges, np.array(GRID_Z))
+    want = ref[np.searchsorted(ranges, r[off]), np.searchsorted(np.array(GRID_Z), z[off])]
+    d = np.abs(tl[off] - want)
+    assert d.mean() <= 0.5 and d.max() <= 1.5, (d.mean(), d.max())
+    for row, (x, y, zz) in zip(out.receivers.rows, RECEIVERS, strict=True):
+        rr = np.array([np.hypot(x, y)])
+        inc = float(band_tl(rr, np.array([zz]))[0, 0])
+        coh = float(-20 * np.log10(np.abs(gfpe_pressure(c_of_z, 100.0, ZS, rr, np.array([zz]), GRASS)))[0, 0])
+        assert abs(row["tl_inc_100hz"] - inc) <= 0.5, (row, inc)
+        assert abs(row["tl_coh_100hz"] - coh) <= 0.5, (row, coh)
+        assert row["field_source"] == WAVE, row
