@@ -104,7 +104,8 @@ def stage_wave_field(
         z_top, cells, band_seconds = wb.z_top_m, wb.cells, wb.seconds
     else:
         wf_all = wave_pressure(profile, srcs, pts, gz, sigma, f_all[use], wind, absorption=_absorption(spec))
-        p_c, valid_all, z_top, cells, band_seconds = wf_all.p, wf_all.valid, wf_all.z_top_m, wf_all.cells, wf_all.seconds
+        p_c, valid_all, z_top = wf_all.p, wf_all.valid, wf_all.z_top_m
+        cells, band_seconds = wf_all.cells, wf_all.seconds
     pts = pts[:n_field]
     solid = np.asarray(field_arrays.arrays["inside_solid"], bool).reshape(-1)
     ok = valid_all[:, :n_field].all(axis=0) & ~solid
@@ -144,9 +145,9 @@ def stage_wave_field(
     log.timings["wave_field"] = seconds
     n_pts = int(spec.wave_band_points)
     band_words = f"{spec.wave_band.replace('_', '-')} band averages over {n_pts} frequencies"
-    what = (
-        f"the map's band levels from {band_words}" if inc_map else "the map at each band's frequency (coherent)"
-    ) + (f"; receivers' incoherent columns from {band_words}, coherent ones at the band's frequency" if with_rec else "")
+    what = f"the map's band levels from {band_words}" if inc_map else "the map at each band's frequency (coherent)"
+    if with_rec:
+        what += f"; receivers' incoherent columns from {band_words}, coherent ones at the band's frequency"
     beams_bands = [lab for lab, u in zip(labels_all, use, strict=True) if not u]
     log.stages["wave_field"] = (
         f"ran: bands {', '.join(lab for lab, u in zip(labels_all, use, strict=True) if u)} Hz from the wavenumber "

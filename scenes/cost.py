@@ -39,7 +39,8 @@ elementary operations, with the formula stated where it is computed:
   ``field.refractive_shadow`` "off", or with "auto" above the stage's own limit (it then skips itself).
 - ``wave_seconds``: the wave-field stage (engine/wave_stage.py): per band it runs (:func:`wave_cost`: 'auto'
   the bands lowest first within WAVE_AUTO_MAX_SECONDS, 'on' all, none where :func:`wave_blockers` says it
-  cannot apply), sources x azimuth bins x ``ffp_cells`` x WAVE_SECONDS_PER_CELL, the top 0.3 x range + 20 m
+  cannot apply), sources x azimuth bins x (the band's frequencies: 1, or N Gauss nodes for band averages,
+  :func:`wave_frequencies`) x ``ffp_cells`` x WAVE_SECONDS_PER_CELL, the top 0.3 x range + 20 m
   (at least 2 x the highest point + 20 m and 40 wavelengths); over ``CostLimits.wave_seconds`` a line naming
   ``field.wave_model``.
 - ``mesh_seconds``: the media-mesh build (:func:`estimate_mesh`), ``cells x MESH_SECONDS_PER_CELL`` of
@@ -116,6 +117,8 @@ SHADOW_AUTO_MAX_SECONDS = 600.0  # ... and estimated seconds (shadow_cost)
 DEFAULT_SHADOW_SECONDS = 1800.0  # budget of the refractive-shadow stage of one job
 # The wave-field stage (engine/wave_stage.py): the same wavenumber integral over every point; measured 1.0e-7 s
 # per cell (500 Hz, 1 km, top 60 m: 2.66e7 cells in 2.6 s; 300 m: 1.33e8 in 10 s, 2026-12-02, loaded 2-core box)
+# Band averages (7 nodes, 1 km, one source, quiet machine, load ~1): 100 Hz octave 2.0-3.1e7 cells in 0.3-0.5 s CPU,
+# 500 Hz 2.4-7.5e8 cells in 2.9-9.0 s (12 ns per cell); 1e-7 kept for the shared machine's load (10-13).
 WAVE_SECONDS_PER_CELL = 1e-7
 WAVE_AUTO_MAX_SECONDS = 120.0  # 'auto': the bands, lowest first, while their estimated seconds add up to this
 DEFAULT_WAVE_SECONDS = 1800.0  # budget of the wave stage of one job ('on')
