@@ -32,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from bentray.engine.acoustics.wave_field import MIN_KR, WaveField, wave_pressure
+from bentray.engine.acoustics.wave_field import MIN_KR, wave_band_energy, wave_pressure
 from bentray.engine.acoustics.weighting import a_weighting_db
 from bentray.engine.diffraction.stage import _field_points, _ground
 from bentray.engine.field_sources import COMBINATION, NONE, WAVE, Contribution, combine
@@ -91,20 +91,36 @@ def stage_wave_field(
     srcs = np.array([np.asarray(s.position, float) for s in job.sources])
     gz = float(ground_z(srcs[:1, :2])[0])
     with_rec = receivers is not None and setup.receivers_xyz is not None and bool(receivers.rows)
+    inc_map = spec.mode == "incoherent"
     n_field = pts.shape[0]
-    if with_rec:  # one integral per band for the map and the receivers together
+    if with_rec:  # one integral per frequency for the map and the receivers together
         pts = np.concatenate([pts, np.asarray(setup.receivers_xyz, float)])
-    wf_all = wave_pressure(profile, srcs, pts, gz, sigma, f_all[use], wind, absorption=_absorption(spec))
-    wf = WaveField(wf_all.p[:, :, :n_field], wf_all.valid[:, :n_field], wf_all.z_top_m, wf_all.cells, wf_all.seconds)
+    band_kw = {"band": spec.wave_band, "points": int(spec.wave_band_points)}
+    energy = p_c = nodes = None
+    if inc_map or with_rec:  # band levels (incoherent map, receivers' incoherent columns): N frequencies a band
+        wb = wave_band_energy(profile, srcs, pts, gz, sigma, f_all[use], wind, centre=not inc_map or with_rec,
+                              absorption=_absorption(spec), **band_kw)  # fmt: skip
+        energy, p_c, valid_all, nodes = wb.energy, wb.p_centre, wb.valid, wb.frequencies_hz
+        z_top, cells, band_seconds = wb.z_top_m, wb.cells, wb.seconds
+    else:
+        wf_all = wave_pressure(profile, srcs, pts, gz, sigma, f_all[use], wind, absorption=_absorption(spec))
+        p_c, valid_all, z_top = wf_all.p, wf_all.valid, wf_all.z_top_m
+        cells, band_seconds = wf_all.cells, wf_all.seconds
     pts = pts[:n_field]
     solid = np.asarray(field_arrays.arrays["inside_solid"], bool).reshape(-1)
-    ok = wf.valid.all(axis=0) & ~solid
+    ok = valid_all[:, :n_field].all(axis=0) & ~solid
     n_f, n = f_all.size, pts.shape[0]
-    p_tot = np.zeros((n_f, n), complex)
     rel = np.zeros((n_f, n))
-    p_tot[use] = wf.p.sum(axis=0)
-    per_source = np.abs(wf.p) ** 2  # (S, F_use, V)
-    rel[use] = np.abs(p_tot[use]) ** 2 if spec.mode == "coherent" else per_source.sum(axis=0)
+    p_tot = None
+    if inc_map:
+        per_source = energy[:, :, :n_field]  # (S, F_use, V): band means of |p|^2
+        rel[use] = per_source.sum(axis=0)
+    else:
+        p_map = p_c[:, :, :n_field]
+        p_tot = np.zeros((n_f, n), complex)
+        p_tot[use] = p_map.sum(axis=0)
+        per_source = np.abs(p_map) ** 2
+        rel[use] = np.abs(p_tot[use]) ** 2 if spec.mode == "coherent" else per_source.sum(axis=0)
     powered = None
     if setup.powers is not None:
         powered = np.zeros((n_f, n))
@@ -123,13 +139,19 @@ def stage_wave_field(
     field_arrays.stats["field_source"] = counts
     rec = None
     if with_rec:
-        rec = _apply_receivers(receivers, setup, f_all, use, wf_all.p[:, :, n_field:], wf_all.valid[:, n_field:])
+        rec = _apply_receivers(receivers, setup, f_all, use, p_c[:, :, n_field:], energy[:, :, n_field:],
+                               valid_all[:, n_field:])  # fmt: skip
     seconds = time.perf_counter() - t0
     log.timings["wave_field"] = seconds
+    n_pts = int(spec.wave_band_points)
+    band_words = f"{spec.wave_band.replace('_', '-')} band averages over {n_pts} frequencies"
+    what = f"the map's band levels from {band_words}" if inc_map else "the map at each band's frequency (coherent)"
+    if with_rec:
+        what += f"; receivers' incoherent columns from {band_words}, coherent ones at the band's frequency"
     beams_bands = [lab for lab, u in zip(labels_all, use, strict=True) if not u]
     log.stages["wave_field"] = (
         f"ran: bands {', '.join(lab for lab, u in zip(labels_all, use, strict=True) if u)} Hz from the wavenumber "
-        f"integral (range-independent scene, field.wave_model '{setting}')"
+        f"integral (range-independent scene, field.wave_model '{setting}'): {what}"
         + (f"; bands {', '.join(beams_bands)} Hz keep the beams (over the 'auto' cost limit)" if beams_bands else "")
         + f"; {int(np.count_nonzero(~ok & ~solid))} points near a source's vertical (k r < {MIN_KR:g}) keep the beams"
     )
@@ -138,13 +160,23 @@ def stage_wave_field(
         "impedance ground, exact for the stratified medium",
         "bands_hz": [float(f) for f in f_all[use]],
         "beam_bands_hz": [float(f) for f in f_all[~use]],
+        "map": "band average (incoherent)" if inc_map else "band frequency (coherent)",
+        "band_average": None
+        if nodes is None
+        else {
+            "band": spec.wave_band,
+            "points": n_pts,
+            "rule": "Gauss-Legendre in ln f over the band (IEC 61260-1 base-10 edges), mean of |p|^2",
+            "used_for": (["map"] if inc_map else []) + (["receivers' incoherent columns"] if with_rec else []),
+            "frequencies_hz": {f"{f:g}": [float(x) for x in row] for f, row in zip(f_all[use], nodes, strict=True)},
+        },
         "estimated_seconds_per_band": {f"{f:g}": float(s) for f, s in zip(bands, est, strict=True)},
-        "seconds_per_band": {f"{f:g}": float(s) for f, s in zip(f_all[use], wf.seconds, strict=True)},
+        "seconds_per_band": {f"{f:g}": float(s) for f, s in zip(f_all[use], band_seconds, strict=True)},
         "sources_sum": "coherent (pressures)" if spec.mode == "coherent" else "incoherent (each source coherent)",
         "points": int(np.count_nonzero(ok)),
         "points_kept_beams": int(np.count_nonzero(~ok & ~solid)),
-        "z_top_m": wf.z_top_m,
-        "cells": wf.cells,
+        "z_top_m": z_top,
+        "cells": cells,
         "seconds": seconds,
         "field_source": counts,
         "receivers": rec,
@@ -152,12 +184,14 @@ def stage_wave_field(
 
 
 def _apply_receivers(
-    receivers: Any, setup: Any, f_all: np.ndarray, use: np.ndarray, p: np.ndarray, valid: np.ndarray
-) -> dict[str, Any]:
-    """The receivers' coherent columns (tl_coh_, spl_coh_, spl_a_coh) in the stage's bands from the wave field
-    (each source's |p|^2, summed over sources; the incoherent columns keep the beams' energy sum, so a row's
-    field_source becomes COMBINATION). p (S, F_use, P) complex, valid (S, P): the stage's integral at the
-    receivers; f_all (F,) the field's bands, ``use`` (F,) those the stage produced."""
+    receivers: Any, setup: Any, f_all: np.ndarray, use: np.ndarray, p: np.ndarray, energy: np.ndarray,
+    valid: np.ndarray,
+) -> dict[str, Any]:  # fmt: skip
+    """The receivers' columns in the stage's bands from the wave field: coherent (tl_coh_, spl_coh_, spl_a_coh)
+    from each source's |p|^2 at the band's frequency, incoherent (tl_inc_, spl_inc_, spl_a_inc) from each
+    source's band mean of |p|^2, both summed over sources. p (S, F_use, P) complex, energy (S, F_use, P), valid
+    (S, P): the stage's integrals at the receivers; f_all (F,) the field's bands, ``use`` (F,) those the stage
+    produced."""
     from bentray.engine.field_sources import combine_receiver_rows
 
     labels = [c[len("tl_inc_") : -2] for c in receivers.columns if c.startswith("tl_inc_")]
@@ -165,19 +199,22 @@ def _apply_receivers(
     if not np.array_equal(f_rec, f_all):
         return {"rows": 0, "bands_hz": [], "why": "the receivers' bands differ from the map's"}
     ok = np.asarray(valid.all(axis=0), bool)
-    n_f, n = f_rec.size, ok.size
-    rel = np.zeros((n_f, n))
-    rel[use] = (np.abs(p) ** 2).sum(axis=0)
-    powered = None
-    if setup.powers is not None:
-        powered = np.zeros((n_f, n))
-        pw = np.asarray(setup.powers, float)[:, use]
-        powered[use] = np.einsum("sfv,sf->fv", np.abs(p) ** 2, pw) / (4.0 * math.pi)
-    w = (use[:, None] & ok[None, :]).astype(float)
     a_w = np.asarray(a_weighting_db(f_rec), float)
-    code = combine_receiver_rows(receivers.rows, labels, a_w, [Contribution(WAVE, rel, w, powered=powered)], [])
+    w = (use[:, None] & ok[None, :]).astype(float)
+    contribs = []
+    for per_source in (np.abs(p) ** 2, energy):
+        rel = np.zeros((f_rec.size, ok.size))
+        rel[use] = per_source.sum(axis=0)
+        powered = None
+        if setup.powers is not None:
+            powered = np.zeros((f_rec.size, ok.size))
+            pw = np.asarray(setup.powers, float)[:, use]
+            powered[use] = np.einsum("sfv,sf->fv", per_source, pw) / (4.0 * math.pi)
+        contribs.append(Contribution(WAVE, rel, w, powered=powered))
+    code = combine_receiver_rows(receivers.rows, labels, a_w, [contribs[0]], [contribs[1]])
     receivers.stats["field_source"] = source_counts(code)
-    return {"rows": int(np.count_nonzero(ok)), "bands_hz": [float(f) for f in f_rec[use]], "columns": "coherent"}
+    return {"rows": int(np.count_nonzero(ok)), "bands_hz": [float(f) for f in f_rec[use]],
+            "columns": "coherent (band frequency) and incoherent (band average)"}  # fmt: skip
 
 
 def wave_cost_lowest(job: Any) -> float:

@@ -39,7 +39,8 @@ elementary operations, with the formula stated where it is computed:
   ``field.refractive_shadow`` "off", or with "auto" above the stage's own limit (it then skips itself).
 - ``wave_seconds``: the wave-field stage (engine/wave_stage.py): per band it runs (:func:`wave_cost`: 'auto'
   the bands lowest first within WAVE_AUTO_MAX_SECONDS, 'on' all, none where :func:`wave_blockers` says it
-  cannot apply), sources x azimuth bins x ``ffp_cells`` x WAVE_SECONDS_PER_CELL, the top 0.3 x range + 20 m
+  cannot apply), sources x azimuth bins x (the band's frequencies: 1, or N Gauss nodes for band averages,
+  :func:`wave_frequencies`) x ``ffp_cells`` x WAVE_SECONDS_PER_CELL, the top 0.3 x range + 20 m
   (at least 2 x the highest point + 20 m and 40 wavelengths); over ``CostLimits.wave_seconds`` a line naming
   ``field.wave_model``.
 - ``mesh_seconds``: the media-mesh build (:func:`estimate_mesh`), ``cells x MESH_SECONDS_PER_CELL`` of
@@ -86,6 +87,7 @@ __all__ = [
     "shadow_cost",
     "wave_blockers",
     "wave_cost",
+    "wave_frequencies",
 ]
 
 PATH_SAMPLE_BYTES = 104  # measured, see the module docstring
@@ -115,6 +117,8 @@ SHADOW_AUTO_MAX_SECONDS = 600.0  # ... and estimated seconds (shadow_cost)
 DEFAULT_SHADOW_SECONDS = 1800.0  # budget of the refractive-shadow stage of one job
 # The wave-field stage (engine/wave_stage.py): the same wavenumber integral over every point; measured 1.0e-7 s
 # per cell (500 Hz, 1 km, top 60 m: 2.66e7 cells in 2.6 s; 300 m: 1.33e8 in 10 s, 2026-12-02, loaded 2-core box)
+# Band averages (7 nodes, 1 km, one source, quiet machine, load ~1): 100 Hz octave 2.0-3.1e7 cells in 0.3-0.5 s CPU,
+# 500 Hz 2.4-7.5e8 cells in 2.9-9.0 s (12 ns per cell); 1e-7 kept for the shared machine's load (10-13).
 WAVE_SECONDS_PER_CELL = 1e-7
 WAVE_AUTO_MAX_SECONDS = 120.0  # 'auto': the bands, lowest first, while their estimated seconds add up to this
 DEFAULT_WAVE_SECONDS = 1800.0  # budget of the wave stage of one job ('on')
@@ -385,15 +389,12 @@ _WAVE_WIND_KINDS = ("log",)  # horizontally uniform winds (the ridge wind varies
 def wave_blockers(job: Any) -> list[str]:
     """Why the wave-field stage (engine/wave_stage.py) cannot apply to the job: [] for a range-independent
     scene (flat ground of one material, no terrain, buildings, barriers, obstacles or ground zones, an open
-    top, a stratified profile, no wind or a log-law wind, omnidirectional sources) with a beam field in
-    coherent or semicoherent mode (the integral is a coherent field; incoherent maps keep the beams)."""
+    top, a stratified profile, no wind or a log-law wind, omnidirectional sources) with a beam field (any
+    mode: incoherent maps get band averages, :func:`wave_frequencies`)."""
     out: list[str] = []
     spec = job.field
     if spec is None or getattr(spec, "method", "beams") != "beams":
         out.append("it needs a beam field (field with method 'beams')")
-    elif spec.mode == "incoherent":
-        out.append("the wave field is coherent; field.mode 'incoherent' keeps the beams (use 'coherent' or "
-                   "'semicoherent')")  # fmt: skip
     scene = job.scene
     if scene.builtin is not None or scene.terrain is not None:
         out.append("the scene has terrain (the integral needs flat ground)")
@@ -429,12 +430,32 @@ def _wave_boxes(job: Any) -> tuple[float, float]:
     return r_max + 10.0, max(z_hi, 0.0)
 
 
+def wave_frequencies(job: Any, f_hz: float) -> list[float]:
+    """The frequencies (Hz) whose wavenumber integrals the wave-field stage runs for the band ``f_hz``: the
+    band's Gauss nodes (engine/acoustics/wave_field.band_nodes, ``field.wave_band_points`` of them) where the
+    map is incoherent or the job has receivers (their incoherent columns), plus the band's own frequency where
+    a coherent or semicoherent map or the receivers' coherent columns need it and it is not a node (even
+    counts); the band's frequency alone for a coherent or semicoherent map without receivers."""
+    from bentray.engine.acoustics.wave_field import band_nodes
+
+    spec = job.field
+    inc_map = spec.mode == "incoherent"
+    with_rec = bool(getattr(job, "receivers", None))
+    if not (inc_map or with_rec):
+        return [float(f_hz)]
+    nodes = [float(x) for x in band_nodes(float(f_hz), spec.wave_band, int(spec.wave_band_points))[0]]
+    if (not inc_map or with_rec) and min(abs(x - f_hz) for x in nodes) > 1e-9 * f_hz:
+        nodes.append(float(f_hz))
+    return nodes
+
+
 def wave_cost(job: Any) -> tuple[list[float], list[float]]:
     """(bands, estimated seconds per band) of the wave-field stage as it would run: 'auto' takes the bands
     lowest first while their seconds add up to WAVE_AUTO_MAX_SECONDS (none in homogeneous air without
     wind, where the beams are exact), 'on' every band, 'off' or a job it
     cannot apply to (:func:`wave_blockers`) none. Per band: sources x azimuth bins (5 degrees, with wind)
-    x ``ffp_cells`` (f^2 x range x top) x WAVE_SECONDS_PER_CELL, the top max(0.3 x range + 20 m,
+    x the sum over :func:`wave_frequencies` (one frequency, or the band's Gauss nodes for band averages) of
+    ``ffp_cells`` (f^2 x range x top) x WAVE_SECONDS_PER_CELL, the top max(0.3 x range + 20 m,
     2 x the highest point + 20 m, 40 wavelengths) (the stage's own rule, engine/acoustics/wave_field.py, is
     at most this for the profiles of the tests: 66 m for linear c = 340 + 0.1 z to 1 km)."""
     from bentray.engine.acoustics.wavenumber import ffp_cells
@@ -453,12 +474,13 @@ def wave_cost(job: Any) -> tuple[list[float], list[float]]:
     out_s: list[float] = []
     total = 0.0
     for f in bands:
-        top = min(2000.0, max(0.3 * r_max + 20.0, 2.0 * z_hi + 20.0, 40.0 * 340.0 / f))
         sec = 0.0
-        for src in job.sources:
-            bins = _azimuth_bins((float(src.position[0]), float(src.position[1])), boxes) if job.wind else 1
-            zs = float(src.position[2]) - float(job.scene.box.min[2]) if len(src.position) == 3 else 2.0
-            sec += bins * ffp_cells(f, 340.0, max(zs, 0.0), r_max, top) * WAVE_SECONDS_PER_CELL
+        for fi in wave_frequencies(job, f):
+            top = min(2000.0, max(0.3 * r_max + 20.0, 2.0 * z_hi + 20.0, 40.0 * 340.0 / fi))
+            for src in job.sources:
+                bins = _azimuth_bins((float(src.position[0]), float(src.position[1])), boxes) if job.wind else 1
+                zs = float(src.position[2]) - float(job.scene.box.min[2]) if len(src.position) == 3 else 2.0
+                sec += bins * ffp_cells(fi, 340.0, max(zs, 0.0), r_max, top) * WAVE_SECONDS_PER_CELL
         if setting == "auto" and total + sec > WAVE_AUTO_MAX_SECONDS:
             break
         total += sec

@@ -53,7 +53,10 @@ class FieldSpec(BaseModel):
     it where it applies (flat ground of one material, no buildings, barriers, terrain or ground zones, a
     stratified profile, no wind or a log wind, omnidirectional sources, mode coherent or semicoherent) for the
     bands, lowest first, whose estimated cost fits scenes/cost.WAVE_AUTO_MAX_SECONDS; "on" for every band,
-    refused (naming this field) where it cannot apply; "off": beams only.
+    refused (naming this field) where it cannot apply; "off": beams only. In mode "incoherent" (and for the
+    receivers' incoherent columns) its band levels are band averages: the mean of |p|^2 over
+    ``wave_band_points`` frequencies (Gauss nodes in ln f) across the ``wave_band`` ("octave", default, or
+    "third_octave") centred on each frequency (docs/physics.md §18, "Band levels").
     """
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -75,6 +78,8 @@ class FieldSpec(BaseModel):
     sample_fraction: float = Field(default=0.5, gt=0.0, le=2.0)
     refractive_shadow: Literal["auto", "on", "off"] = "auto"
     wave_model: Literal["auto", "on", "off"] = "auto"
+    wave_band: Literal["octave", "third_octave"] = "octave"
+    wave_band_points: int = Field(default=7, ge=1, le=31)
 
     @field_validator("spacing")
     @classmethod

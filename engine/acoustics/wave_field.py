@@ -24,7 +24,10 @@ The integral's top (:func:`wave_top_height`): above every point (2 x the highest
 absorb; 120 m at 100 Hz is converged, 60 m is not), above the vertex of the highest ray that comes back
 to the ground within the largest range (downward refraction: 2 x its height + 20 m; 1.25 x left errors of
 up to 4 dB at 500 Hz for the log profile), and above the limiting ray at that range (upward refraction, the
-shadow model's rule). The result must not depend on it
+shadow model's rule); where neither applies (homogeneous air, no wind) at least STRAIGHT_TOP_FRACTION x the
+largest range + 20 m (40 wavelengths alone, 27 m at 500 Hz, left the 1 km level over grass 22 dB too high:
+the absorbing layer's residual echo at grazing angles; 60 m 1.2 dB, 150 m 0.01 dB). The result must not
+depend on it
 (tests/fields/test_wave_field_gfpe.py checks a doubled top).
 """
 
@@ -43,14 +46,32 @@ from bentray.engine.acoustics.refractive_shadow import TOP_MAX_M, column_sound_s
 from bentray.engine.acoustics.wavenumber import ffp_cells, ffp_field
 from bentray.engine.profiles import Profile
 
-__all__ = ["MIN_KR", "TOP_WAVELENGTHS", "WaveField", "wave_cells", "wave_pressure", "wave_top_height"]
+__all__ = [
+    "BAND_FRACTIONS",
+    "DEFAULT_BAND_POINTS",
+    "MIN_KR",
+    "TOP_WAVELENGTHS",
+    "WaveBands",
+    "WaveField",
+    "band_nodes",
+    "wave_band_energy",
+    "wave_cells",
+    "wave_pressure",
+    "wave_top_height",
+]
 
 Wind = tuple[int, np.ndarray]
 MIN_KR = 20.0  # points nearer the source's vertical (k r < MIN_KR) are left to the beams
 TOP_WAVELENGTHS = 40.0  # the integral's top at least this many wavelengths high
+STRAIGHT_TOP_FRACTION = 0.15  # no turning ray and no shadow (homogeneous air): the top at least this x r_max + 20 m
 TURN_MARGIN = 2.0  # the top: this x the vertex height of the ray that comes back to the ground at r_max, + 20 m
 _HEIGHT_STEP_M = 0.05  # point heights grouped to this step (one FFT per distinct height)
 _GL_X, _GL_W = np.polynomial.legendre.leggauss(48)
+# Band averages (:func:`band_nodes`): bands per octave of each band width, and the default number of Gauss
+# nodes per band (docs/physics.md §18, "Band levels"; chosen by the convergence measured there)
+BAND_FRACTIONS = {"octave": 1, "third_octave": 3}
+DEFAULT_BAND_POINTS = 7
+_G10 = 10.0**0.3  # the base-10 octave ratio of IEC 61260-1
 
 
 @dataclass(frozen=True)
@@ -106,14 +127,101 @@ def wave_top_height(
     h_turn = _turning_height(c_of_h, r_max)
     if h_turn > 0.0:
         top = max(top, TURN_MARGIN * h_turn + 20.0)
-    if limiting_ray(c_of_h, 100.0, 64).upward:  # a refractive shadow: above its limiting ray at r_max
+    upward = limiting_ray(c_of_h, 100.0, 64).upward
+    if upward:  # a refractive shadow: above its limiting ray at r_max
         top = max(top, shadow_top_height(c_of_h, zs, r_max, zr_max))
+    if h_turn <= 0.0 and not upward:  # no refraction sets it: the layer's residual echo arrives at ~2 top / r
+        top = max(top, STRAIGHT_TOP_FRACTION * r_max + 20.0)
     return float(max(min(top, TOP_MAX_M), 2.0 * max(zr_max, zs) + 20.0))
 
 
 def wave_cells(frequency_hz: float, c_ground: float, zs: float, r_max: float, z_top: float) -> int:
     """The Numerov steps of one integral (engine/acoustics/wavenumber.ffp_cells): the cost measure."""
     return ffp_cells(frequency_hz, c_ground, zs, r_max, z_top)
+
+
+def band_nodes(
+    frequency_hz: float, band: str = "octave", points: int = DEFAULT_BAND_POINTS
+) -> tuple[np.ndarray, np.ndarray]:
+    """Frequencies (Hz, (points,)) and weights ((points,), summing to 1) of the band average of the band
+    centred on ``frequency_hz``: Gauss-Legendre in ln f over [f G^(-1/2b), f G^(1/2b)], G = 10^0.3 (IEC
+    61260-1 base-10 ratio), b = 1 ("octave") or 3 ("third_octave"); uniform weight in ln f (a pink spectrum
+    inside the band). An odd ``points`` puts a node on f itself (the coherent band's frequency)."""
+    if band not in BAND_FRACTIONS:
+        raise ValueError(f"band must be one of {sorted(BAND_FRACTIONS)}, got {band!r}")
+    if not (int(points) == points and points >= 1) or not frequency_hz > 0:
+        raise ValueError("points must be an integer >= 1 and frequency_hz > 0")
+    x, w = np.polynomial.legendre.leggauss(int(points))
+    half = math.log(_G10) / (2.0 * BAND_FRACTIONS[band])
+    return float(frequency_hz) * np.exp(half * x), 0.5 * w
+
+
+@dataclass(frozen=True)
+class WaveBands:
+    """Band averages of :func:`wave_band_energy`: energy (n_src, n_b, n): the band mean of |p|^2 (re the free
+    field at 1 m, each node with its own ISO 9613-1 absorption; 0 where not ``valid``); p_centre (n_src, n_b, n)
+    complex: the field at each band's own frequency, or None where not asked; valid (n_src, n) bool (at the
+    lowest node of every band); frequencies_hz (n_b, points) the nodes; z_top_m the largest top (m); cells:
+    Numerov steps, summed; seconds (n_b,) wall time per band (all its integrals)."""
+
+    energy: np.ndarray
+    p_centre: np.ndarray | None
+    valid: np.ndarray
+    frequencies_hz: np.ndarray
+    z_top_m: float
+    cells: int
+    seconds: np.ndarray
+
+
+def wave_band_energy(
+    profile: Profile,
+    sources_xyz: ArrayLike,
+    points_xyz: ArrayLike,
+    ground_z: float,
+    flow_resistivity_pa_s_m2: float | None,
+    bands_hz: ArrayLike,
+    wind: Wind | None = None,
+    *,
+    band: str = "octave",
+    points: int = DEFAULT_BAND_POINTS,
+    centre: bool = False,
+    absorption: tuple[float, float, float] | None = None,
+    azimuth_bin_deg: float = 5.0,
+) -> WaveBands:
+    """Band levels from the wave field: per source and band, sum_i w_i |p(f_i)|^2 over :func:`band_nodes`
+    (docs/physics.md §18, "Band levels"), each |p(f_i)|^2 one :func:`wave_pressure` integral (its own top,
+    absorption and ground impedance). ``centre``: also return p at each band's frequency (a node when
+    ``points`` is odd, else one more integral). Arguments as :func:`wave_pressure`; bands_hz (n_b,) Hz."""
+    srcs = np.asarray(sources_xyz, float).reshape(-1, 3)
+    pts = np.asarray(points_xyz, float).reshape(-1, 3)
+    fb = np.asarray(bands_hz, float).ravel()
+    n_s, n_b, n = srcs.shape[0], fb.size, pts.shape[0]
+    energy = np.zeros((n_s, n_b, n))
+    p_c = np.zeros((n_s, n_b, n), complex) if centre else None
+    valid = np.ones((n_s, n), bool)
+    nodes = np.zeros((n_b, int(points)))
+    seconds = np.zeros(n_b)
+    top, cells = 0.0, 0
+    for b, f in enumerate(fb):
+        nodes[b], w = band_nodes(float(f), band, points)
+        todo = list(nodes[b])
+        at = int(np.argmin(np.abs(nodes[b] - f)))
+        if centre and abs(nodes[b][at] - f) > 1e-9 * f:
+            todo.append(float(f))
+            at = len(todo) - 1
+        for i, fi in enumerate(todo):
+            one = wave_pressure(profile, srcs, pts, ground_z, flow_resistivity_pa_s_m2, [fi], wind,
+                                absorption=absorption, azimuth_bin_deg=azimuth_bin_deg)  # fmt: skip
+            valid &= one.valid
+            if i < w.size:
+                energy[:, b] += w[i] * np.abs(one.p[:, 0]) ** 2
+            if centre and i == at:
+                p_c[:, b] = one.p[:, 0]
+            top, cells = max(top, one.z_top_m), cells + one.cells
+            seconds[b] += float(one.seconds.sum())
+    energy[~np.broadcast_to(valid[:, None, :], energy.shape)] = 0.0
+    return WaveBands(energy=energy, p_centre=p_c, valid=valid, frequencies_hz=nodes, z_top_m=top, cells=cells,
+                     seconds=seconds)  # fmt: skip
 
 
 def wave_pressure(

@@ -1,7 +1,8 @@
 """``field.wave_model`` (scenes/field_models.py) and the wave stage's cost (scenes/cost.py): "on" is refused,
 naming the field, where the wavenumber integral cannot apply (terrain, buildings, ground zones, a reflecting
-top, a range-dependent profile or wind, a directional source, an incoherent map); "auto" takes the bands
-lowest first while their estimated seconds fit WAVE_AUTO_MAX_SECONDS and none in homogeneous air without
+top, a range-dependent profile or wind, a directional source; an incoherent map is accepted: band averages);
+"auto" takes the bands lowest first while their estimated seconds fit WAVE_AUTO_MAX_SECONDS and none in
+homogeneous air without
 wind; an expensive "on" gets a budget line naming field.wave_model."""
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import copy
 import pytest
 from pydantic import ValidationError
 
+from bentray.engine.acoustics.wave_field import band_nodes
 from bentray.engine.acoustics.wavenumber import ffp_cells
 from bentray.scenes.cost import (
     WAVE_AUTO_MAX_SECONDS,
@@ -20,6 +22,7 @@ from bentray.scenes.cost import (
     estimate_cost,
     wave_blockers,
     wave_cost,
+    wave_frequencies,
 )
 from bentray.scenes.schema import Job
 
@@ -60,7 +63,6 @@ def _spec(**changes) -> dict:
     [
         ({"scene__buildings": FOOTPRINT}, "buildings"),
         ({"scene__top": {"kind": "reflect"}}, "reflect"),
-        ({"field__mode": "incoherent"}, "incoherent"),
         (
             {
                 "wind": {
@@ -104,7 +106,25 @@ def test_auto_takes_the_bands_lowest_first_within_its_limit():
     assert wave_cost(on)[0] == [63.0, 1000.0, 8000.0]
     assert wave_cost(Job.model_validate(_spec(field__wave_model="off")))[0] == []
     assert wave_cost(Job.model_validate(_spec(profile={"kind": "homogeneous"})))[0] == []  # nothing to correct
-    assert wave_cost(Job.model_validate(_spec(field__mode="incoherent")))[0] == []
+    # an incoherent map: the band's Gauss nodes (7 by default), each its own integral: fewer bands fit
+    inc = Job.model_validate(_spec(field__mode="incoherent", field__frequencies_hz=[63, 125, 250, 500, 1000]))
+    b_inc, s_inc = wave_cost(inc)
+    assert b_inc == [63.0, 125.0, 250.0], b_inc
+    nodes = band_nodes(250.0, "octave", 7)[0]
+    want = sum(ffp_cells(f, 340.0, 2.0, r_max, max(top, 40.0 * 340.0 / f)) for f in nodes) * WAVE_SECONDS_PER_CELL
+    assert s_inc[2] == pytest.approx(want)
+    assert wave_frequencies(inc, 250.0) == pytest.approx(list(nodes))
+    even = Job.model_validate(_spec(field__wave_band_points=4, receivers=[{"id": "a", "position": [300, 0, 1.5]}]))
+    assert len(wave_frequencies(even, 500.0)) == 5  # 4 nodes + the band's own frequency (coherent columns)
+    assert wave_frequencies(Job.model_validate(_spec()), 500.0) == [500.0]  # coherent map, no receivers
+
+
+@pytest.mark.parametrize(("field", "value"), [("wave_band_points", 0), ("wave_band_points", 32),
+                                              ("wave_band", "decade")])  # fmt: skip
+def test_band_options_are_bounded_naming_the_field(field, value):
+    with pytest.raises(ValidationError) as info:
+        Job.model_validate(_spec(**{f"field__{field}": value}))
+    assert f"field.{field}" in str(info.value) or f"field -> {field}" in str(info.value) or field in str(info.value)
 
 
 def test_an_expensive_on_is_refused_naming_the_field():
@@ -119,7 +139,7 @@ def test_an_expensive_on_is_refused_naming_the_field():
 def test_the_report_says_which_stage_gave_which_band_and_why():
     """A coherent log-profile line to 1 km with a band over the 'auto' limit: 100 Hz from the wave stage, 4 kHz
     from the beams, the report says both and why, and each point's field_source is 4 (combination); the same
-    job as an incoherent map skips the stage with its reason."""
+    job as an incoherent map runs the stage with band averages (7 Gauss nodes over the octave), and says so."""
     from bentray.engine.field_sources import COMBINATION
     from bentray.engine.run import run_job
 
@@ -134,5 +154,8 @@ def test_the_report_says_which_stage_gave_which_band_and_why():
     assert set(out.field.arrays["field_source"].ravel().tolist()) == {COMBINATION}
     small["field"]["mode"] = "incoherent"
     inc = run_job(Job.model_validate(_spec(**small)))
-    assert "wave_field" not in inc.report
-    assert inc.report["stages"]["wave_field"].startswith("skipped: the wave field is coherent")
+    wave = inc.report["wave_field"]
+    assert wave["bands_hz"] == [100.0] and wave["map"] == "band average (incoherent)", wave
+    assert wave["band_average"]["points"] == 7 and len(wave["band_average"]["frequencies_hz"]["100"]) == 7
+    stage = inc.report["stages"]["wave_field"]
+    assert "band levels from octave band averages over 7 frequencies" in stage and "4000 Hz keep the beams" in stage
