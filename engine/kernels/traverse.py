@@ -328,7 +328,7 @@ def _beam_segment(beam, slot, bray, prm, cs, x, d, seg, par, scratch, refl):
                 par_tmp[q] = par[q]
             paraxial.along_curve(prm.curve, cs, x, d, g, seg, par_tmp, sig, rates)
             nj = paraxial.to_p(prm.curve, prm.c_ref, cs, g, x, xs, ts, par_tmp, seg)
-        beams.ray_sample(beam, slot, bray, xs, ts, tj, s + dsj, nj / prm.c_ref, par_tmp, refl, False)
+        beams.ray_sample(beam, slot, bray, xs, ts, tj, s + dsj, nj / prm.c_ref, par_tmp, refl, np.bool_(False))
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -422,6 +422,11 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
         for f in range(bray.amp0.shape[0]):
             bray.amp0[f] = rays.f_weights[i_ray, f]
     launch_cos = math.sqrt(d[0] * d[0] + d[1] * d[1])
+    # callee arguments typed int64 / bool, not Literal[int](0) / Literal[bool]: a literal first type (or a
+    # True at one call site, False at another) compiles each callee, ray_sample above all, once more
+    reflections = np.int64(0)
+    yes = np.bool_(True)
+    no = np.bool_(False)
     p_norm = 1.0
     if par_on:
         m_start = _media_at(media_ref, ref_point, gradient, cell, x)
@@ -433,13 +438,22 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
             paraxial.launch(par, d, p_norm)
             if deposit_on:
                 beams.ray_sample(
-                    beam, acc, bray, x, d, 0.0, 0.0, p_norm / c_ref, par, (0, refl_cos, refl_mat, launch_cos), True
+                    beam,
+                    acc,
+                    bray,
+                    x,
+                    d,
+                    0.0,
+                    0.0,
+                    p_norm / c_ref,
+                    par,
+                    (reflections, refl_cos, refl_mat, launch_cos),
+                    yes,
                 )
         else:
             par_on = False
     deposit_on = deposit_on and par_on
     entry = -1
-    reflections = 0
     crossings = 0
     nudges = 0
     nudge_run = 0
@@ -451,7 +465,7 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
     pp_run = 0
     steps = 0
     status = STATUS_RUNNING
-    count = 0
+    count = np.int64(0)
     t_last = 0.0
     if record:
         count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
@@ -555,7 +569,7 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
                 break
             tf = _tangent_face(planes[cell], neighbours[cell], x, d, size[cell])
             if tf >= 0:
-                _onto_face(planes[cell, tf], x, d, True)
+                _onto_face(planes[cell, tf], x, d, yes)
                 slide_face = tf
                 continue
             eta = NUDGE_REL * cell_size
@@ -606,7 +620,7 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
                         p_norm / c_ref,
                         par,
                         (reflections, refl_cos, refl_mat, launch_cos),
-                        False,
+                        no,
                     )
             if f_on:
                 field.deposit_segment(
@@ -686,7 +700,7 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
                         p_norm / c_ref,
                         par,
                         (reflections, refl_cos, refl_mat, launch_cos),
-                        False,
+                        no,
                     )
         if f_on:
             field.deposit_segment(
@@ -723,7 +737,7 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
                 pp_run = 0
             if pp_run >= PINGPONG_SLIDE:
                 # zig-zagging across this face: slide along it in the current cell
-                _onto_face(planes[cell, face], x, d, False)
+                _onto_face(planes[cell, face], x, d, no)
                 slide_face = face
                 pp_run = 0
                 nudges += 1
@@ -793,7 +807,7 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
                         p_norm / c_ref,
                         par,
                         (reflections, refl_cos, refl_mat, launch_cos),
-                        True,
+                        yes,
                     )
             if record and t > t_last:
                 count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
@@ -819,7 +833,7 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
         count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
     if deposit_on and s > bray.last[beams.S_ARC]:  # HOOK (d), paraxial: the last chord
         beams.ray_sample(
-            beam, acc, bray, x, d, t, s, p_norm / c_ref, par, (reflections, refl_cos, refl_mat, launch_cos), False
+            beam, acc, bray, x, d, t, s, p_norm / c_ref, par, (reflections, refl_cos, refl_mat, launch_cos), no
         )
     if want_par:
         out_par = rays.out_par[i_ray]
