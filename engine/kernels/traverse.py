@@ -530,7 +530,8 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
                 curve,
                 c_ref,
                 (ray_wind, wind_params, e_wind),
-                (m_raw, gradient[cell], planes[cell], neighbours[cell], size[cell], mid_ok, x_mid),
+                # beams drop the chord-middle gradient terms (drop_gradient_terms): not computed for them
+                (m_raw, gradient[cell], planes[cell], neighbours[cell], size[cell], mid_ok and not deposit_on, x_mid),
                 x,
                 d,
                 par,
