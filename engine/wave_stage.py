@@ -113,9 +113,11 @@ def stage_wave_field(
     rel = np.zeros((n_f, n))
     p_tot = None
     if inc_map:
+        assert energy is not None
         per_source = energy[:, :, :n_field]  # (S, F_use, V): band means of |p|^2
         rel[use] = per_source.sum(axis=0)
     else:
+        assert p_c is not None
         p_map = p_c[:, :, :n_field]
         p_tot = np.zeros((n_f, n), complex)
         p_tot[use] = p_map.sum(axis=0)
@@ -139,6 +141,7 @@ def stage_wave_field(
     field_arrays.stats["field_source"] = counts
     rec = None
     if with_rec:
+        assert p_c is not None and energy is not None
         rec = _apply_receivers(receivers, setup, f_all, use, p_c[:, :, n_field:], energy[:, :, n_field:],
                                valid_all[:, n_field:])  # fmt: skip
     seconds = time.perf_counter() - t0

@@ -216,6 +216,7 @@ def wave_band_energy(
             if i < w.size:
                 energy[:, b] += w[i] * np.abs(one.p[:, 0]) ** 2
             if centre and i == at:
+                assert p_c is not None
                 p_c[:, b] = one.p[:, 0]
             top, cells = max(top, one.z_top_m), cells + one.cells
             seconds[b] += float(one.seconds.sum())
