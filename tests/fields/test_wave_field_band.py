@@ -138,7 +138,7 @@ def test_incoherent_map_and_receivers_through_run_job():
     from bentray.engine.field_sources import WAVE
     from bentray.engine.run import run_job
     from bentray.scenes.schema import Job
-    from tests.fields.test_wave_field_gfpe import GRID_Z, RECEIVERS, _grid_spec
+    from tests.fields.test_wave_field_gfpe import GRID_Z, RECEIVERS, _grid_spec, grid_points
 
     spec = _grid_spec([[0.0, 0.0, ZS]], "incoherent")
     out = run_job(Job.model_validate(spec))
@@ -153,14 +153,8 @@ def test_incoherent_map_and_receivers_through_run_job():
                 for fi, wi in zip(nodes, w, strict=True))  # fmt: skip
         return -10.0 * np.log10(e)
 
-    pts = out.field.grid.points()
-    tl = out.field.arrays["tl_100hz"].ravel()
-    code = out.field.arrays["field_source"].ravel()
-    r = np.round(np.hypot(pts[:, 0], pts[:, 1]), 6)
-    z = np.round(pts[:, 2], 6)
-    off = r > 0
+    _, tl, code, r, z, off, ranges = grid_points(out)
     assert np.all(code[off] == WAVE)
-    ranges = np.unique(r[off])
     ref = band_tl(ranges, np.array(GRID_Z))
     want = ref[np.searchsorted(ranges, r[off]), np.searchsorted(np.array(GRID_Z), z[off])]
     d = np.abs(tl[off] - want)

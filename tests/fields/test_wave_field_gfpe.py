@@ -130,19 +130,25 @@ def _grid_run(sources: tuple[tuple[float, float, float], ...], mode: str = "cohe
     return run_job(Job.model_validate(_grid_spec([list(s) for s in sources], mode)))
 
 
-def test_3d_grid_is_the_gfpe_r_z_answer_at_every_azimuth_and_height():
-    """Source at the origin, 5 x 5 x 3 grid (ranges 150-424 m, 16 azimuths, heights 1.5 / 6 / 10.5 m): each
-    point's TL equals the GFPE's at its (r, z); the same (r, z) at different azimuths agrees to 0.01 dB. The
-    point on the source's vertical (r = 0, k r < 20) keeps the beams."""
-    out = _grid_run(((0.0, 0.0, ZS),))
+def grid_points(out):
+    """The 3D grid run's points (n, 3), tl_100hz and field_source (n,), each point's horizontal range r and
+    height z (rounded to 1e-6 m), the points off the source's vertical (r > 0) and their distinct ranges."""
     pts = out.field.grid.points()
     tl = out.field.arrays["tl_100hz"].ravel()
     code = out.field.arrays["field_source"].ravel()
     r = np.round(np.hypot(pts[:, 0], pts[:, 1]), 6)
     z = np.round(pts[:, 2], 6)
     off = r > 0
+    return pts, tl, code, r, z, off, np.unique(r[off])
+
+
+def test_3d_grid_is_the_gfpe_r_z_answer_at_every_azimuth_and_height():
+    """Source at the origin, 5 x 5 x 3 grid (ranges 150-424 m, 16 azimuths, heights 1.5 / 6 / 10.5 m): each
+    point's TL equals the GFPE's at its (r, z); the same (r, z) at different azimuths agrees to 0.01 dB. The
+    point on the source's vertical (r = 0, k r < 20) keeps the beams."""
+    out = _grid_run(((0.0, 0.0, ZS),))
+    pts, tl, code, r, z, off, ranges = grid_points(out)
     assert np.all(code[off] == WAVE) and np.all(code[~off] != WAVE)
-    ranges = np.unique(r[off])
     ref = gfpe_tl(PROFILES["log_down"][1], 100.0, ZS, ranges, np.array(GRID_Z), flow_resistivity=GRASS)
     want = ref[np.searchsorted(ranges, r[off]), np.searchsorted(np.array(GRID_Z), z[off])]
     d = np.abs(tl[off] - want)
