@@ -11,8 +11,9 @@ When (:func:`bentray.scenes.cost.wave_blockers`, :func:`bentray.scenes.cost.wave
 "auto" (default) where the scene is range-independent and the map is coherent or semicoherent, for the bands,
 lowest first, whose estimated seconds add up to at most WAVE_AUTO_MAX_SECONDS; "on" every band (a job it
 cannot apply to is refused at validation, naming the field); "off" never. Receivers (with a field in the
-job): their coherent columns in the stage's bands come from the wave field too (each source's |p|^2 summed),
-their incoherent columns keep the beams' energy sum, and the eigenray columns are the eigenrays'.
+job): in the stage's bands their coherent columns come from the wave field at the band's frequency (each
+source's |p|^2 summed), their incoherent columns from its band averages, and the eigenray columns are the
+eigenrays'.
 
 Merge (:func:`bentray.engine.field_sources.combine`, mode "replace", weight 1): in the stage's bands, at every
 field point outside solids with k r >= MIN_KR from every source (nearer a source's vertical the beams stay),
