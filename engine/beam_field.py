@@ -51,6 +51,7 @@ P_REF_INTENSITY = 1e-12  # W/m^2, reference intensity of SPL
 # Reflection-count groups kept apart (0, 1, 2, >= 3 reflections). Memory per slot:
 # groups x N_KMAH x bands x points x 8 bytes (x 2 for complex sums).
 MAX_REFLECTION_GROUPS = 4
+NO_HESSIAN = np.zeros((0, 9))  # BeamTables.hessian without a mesh: the exact kicks of the piecewise-linear mesh
 
 
 @dataclass
@@ -310,7 +311,7 @@ def beam_tables(
 ) -> BeamTables:
     """Complex ground table per (material, band), absorption per band (1/m) and the chord length (m)."""
     q = build_q_table([float(f) for f in np.asarray(frequencies_hz, float)], materials, c=sound_speed)
-    return BeamTables(q.table, q.grid, np.asarray(alpha, float), float(chord_m))
+    return BeamTables(q.table, q.grid, np.asarray(alpha, float), float(chord_m), NO_HESSIAN)
 
 
 def launch_steps(elevation_deg: np.ndarray, azimuth_deg: np.ndarray) -> tuple[float, float]:
@@ -337,7 +338,7 @@ def no_beam_args(n_f: int = 1) -> tuple[BeamGrid, BeamAcc, BeamTables, BeamGrid,
         1,
         BEAM_OFF,
     )
-    t = BeamTables(np.zeros((1, n_f, 2, 2, 2)), np.zeros(5), np.zeros(n_f), 1.0)
+    t = BeamTables(np.zeros((1, n_f, 2, 2, 2)), np.zeros(5), np.zeros(n_f), 1.0, NO_HESSIAN)
     return g, _empty_acc(), t, g, _empty_acc(), bin_points(np.zeros((0, 3)))
 
 

@@ -77,7 +77,9 @@ ON_FACE_REL = 1e-12
 # which flip tubes (spurious caustics; the ridge map's point noise fell from 1.7 to 0.16 dB). Horizontal
 # faces (slabs, the stratified part of a mesh) keep the exact derivative: bounding it there too made the
 # upward-refraction GFPE cases worse (0.66 -> 1.76 dB). Exact derivatives are always kept when the state
-# is asked for (trace(paraxial=True): eigenrays, tests).
+# is asked for (trace(paraxial=True): eigenrays, tests). Without wind (parabolic curve) beams carry the state
+# through the smooth medium instead (mesh/hessian.py: no face kicks at all); there the bound applies only at
+# boundary faces (terrain reflections).
 BEAM_KICK_BOUND_NZ = 1.0 - 1e-9
 # When a ray finds no exit (rounding at an edge or vertex), it is moved along its tangent by
 # NUDGE_REL * cell size and re-located by walking; such events are counted in the report.

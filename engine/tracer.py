@@ -31,6 +31,7 @@ from bentray.engine.kernels.field import FieldAcc
 from bentray.engine.kernels.lean import trace_block_lean
 from bentray.engine.kernels.traverse import PAR_OUT_SIZE, PathBuffers, RayParams, Rays, trace_rays
 from bentray.engine.mesh.cells import CellMesh
+from bentray.engine.mesh.hessian import hessian_of
 from bentray.engine.result import RayPaths, TraceResult
 from bentray.engine.wind import WIND_NONE, check_wind
 
@@ -250,9 +251,10 @@ def trace(
     path_samples: int = 0,
     field: FieldBuffers | BeamBuffers | None = None,
     wind: tuple[int, np.ndarray] | None = None,
-    paraxial: bool = False,
+    paraxial: bool | str = False,
     record_reflections: bool = False,
     kernel: str = "auto",
+    smooth_beams: bool = True,
 ) -> TraceResult:
     """Trace rays through ``mesh`` with the given curve kind.
 
@@ -272,12 +274,20 @@ def trace(
     kernel : "auto" (the lean kernel, kernels/lean.py, for a plain parabolic trace: no paths, field, wind,
         paraxial state or reflection records; the generic one otherwise), "generic" or "lean" (ValueError
         when the trace is not the lean kernel's case). Both give bit-identical final states.
+    smooth_beams : with beams (parabolic curve, no wind), carry the paraxial state through the smooth medium
+        of the mesh's per-cell Hessians (mesh/hessian.py; docs/physics.md §11) instead of the piecewise-linear
+        mesh's face kicks; False: the exact kicks (measurements). The rays themselves are the same.
+        ``paraxial="smooth"`` returns that state without beams (parabolic, no wind; otherwise as True).
     Returns a TraceResult with launch angles left at NaN (the caller fills them in).
     """
     if kernel not in KERNELS:
         raise ValueError(f"kernel must be one of {KERNELS}, got {kernel!r}")
     origins, directions, start_cells = ray_inputs(curve, origins, directions, start_cells, max_time_s)
     wind_code, wind_params = check_wind(wind)
+    if paraxial not in (False, True, "smooth"):
+        raise ValueError(f"paraxial must be False, True or 'smooth', got {paraxial!r}")
+    smooth_par = paraxial == "smooth"
+    paraxial = bool(paraxial)
     if kernel != "generic" and lean_applies(curve, path_samples, field, wind_code, paraxial, record_reflections):
         return trace_lean(
             mesh,
@@ -298,6 +308,10 @@ def trace(
     if isinstance(field, FieldBuffers):
         check_material_table(mesh, field)
     fa = _field_args(field, n, curve, paraxial, record_reflections)
+    smooth = (isinstance(field, BeamBuffers) and smooth_beams) or smooth_par
+    if smooth and curve == "parabolic" and wind_code == WIND_NONE:
+        b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts = fa.beam
+        fa = fa._replace(beam=(b_grid, b_acc, b_tabs._replace(hessian=hessian_of(mesh)), p_grid, p_acc, b_pts))
     prm = RayParams(
         CURVE_CODES[curve],
         float(c_ref),

@@ -163,7 +163,7 @@ def ray_sample_device(beam, ray, x, tangent, time, arc, slow, par, refl, start_n
 @cuda.jit(device=True)
 def beam_segment_device(beam, bray, prm, cs, x, d, seg, par, scratch, refl):
     """``traverse._beam_segment`` on the device: beam samples inside a segment longer than the chord length."""
-    param, t, s, ds = seg
+    param, t, s, ds, smooth_cell = seg
     par_tmp, p_tmp, xs, ts = scratch
     chord = beam.tabs.chord_m
     if ds <= chord:
@@ -173,6 +173,11 @@ def beam_segment_device(beam, bray, prm, cs, x, d, seg, par, scratch, refl):
         sig = param * j / (n_int + 1)
         dsj = curves.evaluate(prm.curve, cs, x, d, sig, xs, ts)
         tj = t + curves.time_at(prm.curve, cs, sig, prm.c_ref)
-        paraxial.advanced_copy(par, sig, par_tmp)
+        if smooth_cell >= 0:  # the smooth medium (traverse._beam_segment)
+            for q in range(paraxial.PAR_SIZE):
+                par_tmp[q] = par[q]
+            paraxial.smooth_advance(par_tmp, beam.tabs.hessian, smooth_cell, sig)
+        else:
+            paraxial.advanced_copy(par, sig, par_tmp)
         nj = _p_at(cs, sig, p_tmp)
         ray_sample_device(beam, bray, xs, ts, tj, s + dsj, nj / prm.c_ref, par_tmp, refl, False)

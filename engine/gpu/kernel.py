@@ -208,6 +208,10 @@ def trace_rays_cuda(mesh, prm, rays, b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts
         else:
             par_on = False
     deposit_on = deposit_on and par_on
+    # beams in the smooth medium (mesh/hessian.py), as on the CPU: per-cell Hessians, no face kicks
+    hess = b_tabs.hessian
+    smooth = deposit_on and not wind_on and hess.shape[0] == planes.shape[0]
+    g_nb = cuda.local.array(3, nb.float64)
     entry = -1
     reflections = 0
     crossings = 0
@@ -267,7 +271,8 @@ def trace_rays_cuda(mesh, prm, rays, b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts
             break
         if par_on:  # the segment restarts from this cell's model at x: p' = n'(x) d (docs/physics.md §10)
             n_new = math.sqrt(m0)
-            paraxial.restart(par, d, p_norm, n_new, g)
+            if not smooth:  # smooth medium: the state carries on as it is (traverse.trace_one)
+                paraxial.restart(par, d, p_norm, n_new, g)
             p_norm = n_new
         cell_size = size[cell]
         face, param = curves.find_exit(
@@ -311,12 +316,15 @@ def trace_rays_cuda(mesh, prm, rays, b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts
                         cs,
                         x,
                         d,
-                        (param_end, t, s, ds),
+                        (param_end, t, s, ds, cell if smooth else -1),
                         par,
                         (par_tmp, p_end, xs, ts),
                         (reflections, refl_cos, refl_mat, launch_cos),
                     )
-                paraxial.advance(par, param_end)
+                if smooth:
+                    paraxial.smooth_advance(par, hess, cell, param_end)
+                else:
+                    paraxial.advance(par, param_end)
                 p_norm = _p_at(cs, param_end, p_end)
                 if deposit_on:
                     ray_sample_device(
@@ -352,19 +360,28 @@ def trace_rays_cuda(mesh, prm, rays, b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts
                     cs,
                     x,
                     d,
-                    (param, t, s, ds),
+                    (param, t, s, ds, cell if smooth else -1),
                     par,
                     (par_tmp, p_end, xs, ts),
                     (reflections, refl_cos, refl_mat, launch_cos),
                 )
-            paraxial.advance(par, param)
+            if smooth:
+                paraxial.smooth_advance(par, hess, cell, param)
+            else:
+                paraxial.advance(par, param)
             p_norm = _p_at(cs, param, p_end)
             if face >= 0:
                 # exact derivatives, unless the face is slanted: then the kick of a near-tangential crossing is
                 # bounded (constants.BEAM_KICK_BOUND_NZ; docs/physics.md §11); par_on implies deposit_on here
                 slanted = abs(planes[cell, face, 2]) < BEAM_KICK_BOUND_NZ
                 bound = cell_size / p_norm if deposit_on and slanted else math.inf
-                paraxial.onto_face(par, planes[cell, face], p_end, g, bound)
+                if smooth and neighbours[cell, face] >= 0:
+                    pass  # the smooth medium has no face here
+                elif smooth:  # a boundary: with the smooth medium's gradient at the face point
+                    paraxial.smooth_gradient(hess, cell, g, xn, g_nb)
+                    paraxial.onto_face(par, planes[cell, face], p_end, g_nb, bound)
+                else:
+                    paraxial.onto_face(par, planes[cell, face], p_end, g, bound)
                 if deposit_on and (neighbours[cell, face] < 0 or s + ds - bray.last[_S_ARC] >= b_tabs.chord_m):
                     ray_sample_device(
                         beam,

@@ -27,9 +27,10 @@ from bentray.engine.gpu.kernel import THREADS_PER_BLOCK, trace_rays_cuda
 from bentray.engine.kernels.beams import BeamAcc
 from bentray.engine.kernels.traverse import PAR_OUT_SIZE, RayParams, Rays
 from bentray.engine.mesh.cells import CellMesh
+from bentray.engine.mesh.hessian import hessian_of
 from bentray.engine.result import TraceResult
 from bentray.engine.tracer import _trace_result, ray_inputs
-from bentray.engine.wind import check_wind
+from bentray.engine.wind import WIND_NONE, check_wind
 
 __all__ = ["LAUNCH_RAYS", "device_mesh", "trace_cuda"]
 
@@ -88,6 +89,7 @@ def trace_cuda(
     wind: tuple[int, np.ndarray] | None = None,
     refl_cap: int = 1,
     beams: BeamBuffers | None = None,
+    smooth_beams: bool = True,
 ) -> tuple[TraceResult, dict[str, float]]:
     """Final ray states of tracer.trace (no voxel field, paths or paraxial state) computed by the CUDA kernel,
     and the beam field when ``beams`` is given.
@@ -96,7 +98,8 @@ def trace_cuda(
     ray (incidence cosine, face material; REFLECTION_RECORD_CAP with beams, as on the CPU: the beams' ground
     factors read them). beams : accumulators with one slot (``BeamBuffers.like(weights, n_slots=1)``; its
     ``ray_amp`` the per-ray directivity factors or None), filled in place (``beams.acc``, ``beams.p_acc``
-    replaced by the device's sums; the caller collapses them as after tracer.trace). Returns (TraceResult with
+    replaced by the device's sums; the caller collapses them as after tracer.trace); smooth_beams : as in
+    tracer.trace. Returns (TraceResult with
     launch angles NaN, timings in seconds).
     """
     origins, directions, start_cells = ray_inputs(curve, origins, directions, start_cells, max_time_s)
@@ -114,6 +117,9 @@ def trace_cuda(
             f_weights = np.ascontiguousarray(beams.ray_amp, dtype=np.float64)
         refl_cap = max(refl_cap, REFLECTION_RECORD_CAP)
         b_args = beams.kernel_args()
+        if smooth_beams and wind_code == WIND_NONE:  # the smooth medium's paraxial state, as trace() does
+            b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts = b_args
+            b_args = (b_grid, b_acc, b_tabs._replace(hessian=hessian_of(mesh)), p_grid, p_acc, b_pts)
     else:
         b_args = no_beam_args()
     timings: dict[str, float] = {}

@@ -551,12 +551,16 @@ class BeamTables(NamedTuple):
     q_table, q_grid : complex spherical-wave coefficient per (material, band) (acoustics.ground.build_q_table;
         materials beyond the table are refused when the job is prepared); alpha : (F,) energy absorption
         coefficient, 1/m (amplitude factor exp(-alpha s / 2)); chord_m : largest chord length, m.
+    hessian : (n_cells, 9) the mesh's smooth Hessian of n^2 per cell and its centroid (mesh/hessian.py: the
+        beams' paraxial state in the smooth medium, docs/physics.md §11), or (0, 9): the exact kicks of the
+        piecewise-linear mesh.
     """
 
     q_table: np.ndarray
     q_grid: np.ndarray
     alpha: np.ndarray
     chord_m: float
+    hessian: np.ndarray
 
 
 class BeamRay(NamedTuple):

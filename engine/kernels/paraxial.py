@@ -17,6 +17,12 @@ azimuth). Inside one cell the parabolic map ``x(sigma) = x0 + p0 sigma + g sigma
 - specular reflection with R = I - 2 m m^T: ``X_k -> R X_k`` (X_k lies in the plane after
   :func:`onto_face`), ``P_k -> R P_k``.
 
+*Smooth medium* (beams without wind, and ``trace(paraxial="smooth")``; docs/physics.md §11): the
+derivatives of the C1 medium whose Hessian H is constant per cell (engine/mesh/hessian.py) instead of the
+mesh's own: ``dX/dsigma = P``, ``dP/dsigma = H X / 2`` along the cell's curve (:func:`smooth_advance`), no
+projection onto inner faces and no restart (the medium has no faces), and at a boundary (reflection, exit)
+:func:`onto_face` with the smooth gradient at the face point (:func:`smooth_gradient`).
+
 With wind the per-cell gradient is taken at the middle of the chord through the cell, which depends on
 the entry state; that dependence is not differentiated (first order in the cell size), nor are the
 rare slide and nudge moves (counted in the ray's nudges).
@@ -117,6 +123,63 @@ def onto_face(par, plane, p, g, max_dsig):
         for i in range(3):
             par[o + i] += p[i] * dsig
             par[6 + o + i] += 0.5 * g[i] * dsig
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def hessian_kick(par, hess, cell, coef):
+    """P_k += coef H X_k (in place), H the symmetric Hessian of n^2 in row ``cell`` of hess (n_cells, 9):
+    (xx, yy, zz, xy, xz, yz), per m^2. Half a step of dP/dsigma = H X / 2 is coef = sigma / 4 (the beams'
+    paraxial state in the smooth medium, kick-drift-kick around :func:`advance`; docs/physics.md §11)."""
+    hxx = hess[cell, 0]
+    hyy = hess[cell, 1]
+    hzz = hess[cell, 2]
+    hxy = hess[cell, 3]
+    hxz = hess[cell, 4]
+    hyz = hess[cell, 5]
+    for k in range(2):
+        o = 3 * k
+        x0 = par[o]
+        x1 = par[o + 1]
+        x2 = par[o + 2]
+        par[6 + o] += coef * (hxx * x0 + hxy * x1 + hxz * x2)
+        par[7 + o] += coef * (hxy * x0 + hyy * x1 + hyz * x2)
+        par[8 + o] += coef * (hxz * x0 + hyz * x1 + hzz * x2)
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def smooth_gradient(hess, cell, g, x, out):
+    """out = g + H (x - c): the smooth medium's gradient at x in ``cell`` (g the cell's gradient, which the
+    smooth medium has at the cell's centroid c = hess[cell, 6:9])."""
+    d0 = x[0] - hess[cell, 6]
+    d1 = x[1] - hess[cell, 7]
+    d2 = x[2] - hess[cell, 8]
+    out[0] = g[0] + hess[cell, 0] * d0 + hess[cell, 3] * d1 + hess[cell, 4] * d2
+    out[1] = g[1] + hess[cell, 3] * d0 + hess[cell, 1] * d1 + hess[cell, 5] * d2
+    out[2] = g[2] + hess[cell, 4] * d0 + hess[cell, 5] * d1 + hess[cell, 2] * d2
+
+
+SMOOTH_STEP = 0.02  # largest sigma sqrt(|H|/2) of one kick-drift-kick substep of smooth_advance
+
+
+@nb.njit(**NJIT_FLAGS)
+def smooth_advance(par, hess, cell, sigma):
+    """X_k, P_k after sigma along the cell's curve in the smooth medium, dX/dsigma = P, dP/dsigma = H X / 2 with
+    the cell's constant Hessian (row ``cell`` of hess): kick-drift-kick substeps of sigma sqrt(|H|_F / 2) at
+    most SMOOTH_STEP (one substep in most cells; more for grazing chords through strongly curved layers),
+    each second-order accurate; the local error of a substep is O((sigma sqrt(|H|/2))^3). In place."""
+    h2 = 0.0
+    for j in range(6):  # the Hessian's components; [6:9] is the centroid
+        w = 2.0 if j >= 3 else 1.0
+        h2 += w * hess[cell, j] * hess[cell, j]
+    rate = math.sqrt(0.5 * math.sqrt(h2))
+    n_sub = 1
+    if rate > 0.0:
+        n_sub = min(100000, 1 + int(abs(sigma) * rate / SMOOTH_STEP))
+    step = sigma / n_sub
+    for _ in range(n_sub):
+        hessian_kick(par, hess, cell, 0.25 * step)
+        advance(par, step)
+        hessian_kick(par, hess, cell, 0.25 * step)
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)

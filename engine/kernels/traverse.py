@@ -303,12 +303,13 @@ def _p_at(cs, sigma, p_out):
 def _beam_segment(beam, slot, bray, prm, cs, x, d, seg, par, scratch, refl):
     """Beam samples inside a segment longer than the chord length (on the curve, uniform in sigma).
 
-    prm : RayParams (curve, c_ref); seg : (param, t, s, ds) the segment's end parameter, start time (s),
-    start arc (m) and length (m); scratch : (par_tmp, p_tmp, xs, ts, seg, rates, g) work arrays (seg: the
+    prm : RayParams (curve, c_ref); seg : (param, t, s, ds, cell) the segment's end parameter, start time (s),
+    start arc (m), length (m) and, for beams in the smooth medium (paraxial.smooth_advance), the cell (else
+    -1); scratch : (par_tmp, p_tmp, xs, ts, seg, rates, g) work arrays (seg: the
     segment record of kernels/paraxial.py, g: the segment's gradient); refl : the ray's reflections tuple
     of beams.ray_sample.
     """
-    param, t, s, ds = seg
+    param, t, s, ds, smooth_cell = seg
     par_tmp, p_tmp, xs, ts, seg, rates, g = scratch
     chord = beam.tabs.chord_m
     if ds <= chord:
@@ -318,7 +319,12 @@ def _beam_segment(beam, slot, bray, prm, cs, x, d, seg, par, scratch, refl):
         sig = param * j / (n_int + 1)
         dsj = curves.evaluate(prm.curve, cs, x, d, sig, xs, ts)
         tj = t + curves.time_at(prm.curve, cs, sig, prm.c_ref)
-        if prm.curve == CURVE_PARABOLIC:
+        if smooth_cell >= 0:
+            for q in range(paraxial.PAR_SIZE):
+                par_tmp[q] = par[q]
+            paraxial.smooth_advance(par_tmp, beam.tabs.hessian, smooth_cell, sig)
+            nj = _p_at(cs, sig, p_tmp)
+        elif prm.curve == CURVE_PARABOLIC:
             paraxial.advanced_copy(par, sig, par_tmp)
             if seg[16] != 0.0:
                 paraxial.advance_dg(par_tmp, seg, sig)
@@ -453,6 +459,10 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
         else:
             par_on = False
     deposit_on = deposit_on and par_on
+    # the smooth medium (mesh/hessian.py; beams, or trace(paraxial="smooth")): per-cell Hessians, no face kicks
+    hess = beam.tabs.hessian
+    smooth = par_on and parabolic and not wind_on and hess.shape[0] == planes.shape[0]
+    g_nb = np.zeros(3)
     entry = -1
     crossings = 0
     nudges = 0
@@ -545,7 +555,7 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
             n_new = math.sqrt(m0)
             if wind_on:
                 paraxial.restart_dm(par, d, p_norm, n_new, seg)
-            else:
+            elif not smooth:  # smooth medium: n^2 and the constraint 2 p.P = grad n^2 . X carry on as they are
                 paraxial.restart(par, d, p_norm, n_new, g)
             p_norm = n_new
         elif par_on:  # circular / n-linear: the segment starts from (x, d); its D_k (docs/physics.md §10)
@@ -596,12 +606,15 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
                         cs,
                         x,
                         d,
-                        (param_end, t, s, ds),
+                        (param_end, t, s, ds, cell if smooth else np.int64(-1)),
                         par,
                         (par_tmp, p_end, xs, ts, seg, rates, g),
                         (reflections, refl_cos, refl_mat, launch_cos),
                     )
-                if parabolic:
+                if smooth:
+                    paraxial.smooth_advance(par, hess, cell, param_end)
+                    p_norm = _p_at(cs, param_end, p_end)
+                elif parabolic:
                     paraxial.advance(par, param_end)
                     if wind_on:
                         paraxial.advance_dg(par, seg, param_end)
@@ -664,12 +677,16 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
                     cs,
                     x,
                     d,
-                    (param, t, s, ds),
+                    (param, t, s, ds, cell if smooth else np.int64(-1)),
                     par,
                     (par_tmp, p_end, xs, ts, seg, rates, g),
                     (reflections, refl_cos, refl_mat, launch_cos),
                 )
-            if parabolic:
+            if smooth:
+                paraxial.smooth_advance(par, hess, cell, param)
+                p_norm = _p_at(cs, param, p_end)
+                x_rate = p_norm
+            elif parabolic:
                 paraxial.advance(par, param)
                 if wind_on:
                     paraxial.advance_dg(par, seg, param)
@@ -682,7 +699,13 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
                 # near-tangential crossing is bounded (constants.BEAM_KICK_BOUND_NZ; docs/physics.md §11)
                 slanted = abs(planes[cell, face, 2]) < BEAM_KICK_BOUND_NZ
                 bound = cell_size / x_rate if deposit_on and slanted else math.inf
-                if parabolic:
+                if smooth and neighbours[cell, face] >= 0:
+                    pass  # the smooth medium has no face here: X_k stay at fixed sigma (mesh/hessian.py)
+                elif smooth:
+                    # a boundary (reflection, exit): onto it with the smooth medium's gradient at the face point
+                    paraxial.smooth_gradient(hess, cell, g, xn, g_nb)
+                    paraxial.onto_face(par, planes[cell, face], p_end, g_nb, bound)
+                elif parabolic:
                     paraxial.onto_face(par, planes[cell, face], p_end, g, bound)
                 else:
                     paraxial.onto_face_rates(par, planes[cell, face], rates, bound)

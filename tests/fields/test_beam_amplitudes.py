@@ -53,7 +53,7 @@ def _amplitude_now(tabs, arc, n_refl, refl_cos, refl_mat, out):
 
 def _tables() -> BeamTables:
     q = build_q_table(list(FREQS), [None, 20_000.0, 300_000.0], c=340.0)
-    return BeamTables(q.table, q.grid, ALPHA.copy(), 4.0)
+    return BeamTables(q.table, q.grid, ALPHA.copy(), 4.0, np.zeros((0, 9)))
 
 
 def test_amplitude_matches_per_band_lookup() -> None:

@@ -1,0 +1,149 @@
+"""A smooth second derivative of the mesh's traced quantity, per cell, for the beams' paraxial state.
+
+The media mesh is piecewise linear: inside a cell m (n^2 for the parabolic curve) has the constant gradient
+``mesh.gradient[c]`` and no curvature; all of the medium's curvature sits in the gradient jumps at faces.
+The exact paraxial derivatives of that mesh turn those jumps into kicks ``(g_old - g_new)/2 d sigma`` with
+``d sigma = -(m.X)/(m.p)``, which grow without bound as a crossing turns tangential (docs/physics.md §11,
+"Smooth-medium paraxial state"): a ray whose turning point sits just above a face and its neighbour just
+below it get very different tubes. The medium the mesh approximates has no such jumps; its curvature is
+smooth. Beams therefore propagate the paraxial state through a medium whose Hessian is constant per cell
+and spreads each face's jump over the two cells it separates. The Hessian of a piecewise-linear m, as a
+distribution, is a sum over faces of ``sym(dg_f n_f^T) delta_f`` (dg_f = g[nb] - g[c] across face f, n_f
+its unit normal out of c, delta_f the surface delta); its integral over space is
+``sum_f A_f sym(dg_f n_f^T)``. Giving each face's share to c and nb in proportion to their volumes,
+
+    H_c = sum over inner faces f of c:  A_f sym(dg_f n_f^T) / (V_c + V_nb),
+
+conserves that integral exactly: a steep ray crossing many cells gets, to first order in the cell size,
+the same total as the sum of the exact kicks. On slabs (A_f / V = 1 / h) this is
+``H_zz = (H_below + H_above) / 2`` with ``H_face = dg / ((h_c + h_nb) / 2)``: the jump over the distance
+between layer middles. A cell on the domain's boundary lacks the faces beyond it: its H is scaled by
+``C = M_inner^+ M_all`` (M = sum of A_f n_f n_f^T over its inner / all faces), so a ground slab gets the
+full H_zz of the face above it (directions the inner faces cover with less than 1/4 of their largest
+``M_inner`` eigenvalue are left out of C, not amplified). The ray itself still follows the mesh's exact curves.
+
+Returned as (n_cells, 9) float64: (H_xx, H_yy, H_zz, H_xy, H_xz, H_yz) per metre^2 and the centroid (m), the
+point where the smooth medium's gradient is the cell's own (its gradient elsewhere: g + H (x - centroid)).
+"""
+
+from __future__ import annotations
+
+from itertools import combinations
+
+import numpy as np
+
+from bentray.engine.constants import FACE_UNUSED
+from bentray.engine.mesh.cells import CellMesh
+
+_CACHE: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # id(mesh.gradient) -> (that array, its Hessians)
+_CACHE_SIZE = 4
+
+
+def cell_vertices(mesh: CellMesh) -> tuple[np.ndarray, np.ndarray]:
+    """The vertices of each convex cell: the points where three of its face planes meet inside every other
+    face. Returns (points (n, V, 3) m, valid (n, V) bool), V = C(K, 3) candidate slots (a tet: 4 valid of
+    4, a slab box: 8 of 20)."""
+    planes = mesh.planes
+    n, k = planes.shape[0], planes.shape[1]
+    used = mesh.neighbours != FACE_UNUSED
+    triples = list(combinations(range(k), 3))
+    pts = np.full((n, len(triples), 3), np.nan)
+    valid = np.zeros((n, len(triples)), dtype=bool)
+    scale = np.maximum(1.0, np.max(np.abs(planes[:, :, 3]), axis=1))
+    for slot, (a, b, c) in enumerate(triples):
+        mat = planes[:, [a, b, c], :3]
+        det = np.linalg.det(mat)
+        ok = used[:, a] & used[:, b] & used[:, c] & (np.abs(det) > 1e-12)
+        if not ok.any():
+            continue
+        idx = np.nonzero(ok)[0]
+        p = np.linalg.solve(mat[idx], planes[idx][:, [a, b, c], 3][..., None])[..., 0]
+        dist = np.einsum("nkj,nj->nk", planes[idx, :, :3], p) - planes[idx, :, 3]
+        inside = np.all((dist <= 1e-9 * scale[idx, None]) | ~used[idx], axis=1)
+        pts[idx[inside], slot] = p[inside]
+        valid[idx[inside], slot] = True
+    if not np.all(valid.any(axis=1)):
+        raise ValueError("cell_vertices: a cell has no vertex (its face planes do not bound it)")
+    return pts, valid
+
+
+def face_areas(mesh: CellMesh, pts: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """(n, K) area of each face (m^2; 0 for unused slots): the convex polygon of the cell's vertices on
+    the face plane, ordered by angle about their mean and fanned into triangles."""
+    planes = mesh.planes
+    n, k = planes.shape[0], planes.shape[1]
+    scale = np.maximum(1.0, np.max(np.abs(planes[:, :, 3]), axis=1))
+    areas = np.zeros((n, k))
+    filled = np.where(valid[..., None], pts, 0.0)
+    for f in range(k):
+        m = planes[:, f, :3]
+        on = valid & (np.abs(np.einsum("nvj,nj->nv", filled, m) - planes[:, f, 3][:, None]) <= 1e-9 * scale[:, None])
+        on &= (mesh.neighbours[:, f] != FACE_UNUSED)[:, None]
+        cnt = on.sum(axis=1)
+        centre = np.einsum("nvj,nv->nj", filled, on) / np.maximum(cnt, 1)[:, None]
+        # an in-plane frame (u, w) per face
+        helper = np.where(np.abs(m[:, 0:1]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
+        u = np.cross(m, helper)
+        u /= np.linalg.norm(u, axis=1)[:, None]
+        w = np.cross(m, u)
+        rel = filled - centre[:, None, :]
+        ang = np.arctan2(np.einsum("nvj,nj->nv", rel, w), np.einsum("nvj,nj->nv", rel, u))
+        ang = np.where(on, ang, np.inf)
+        order = np.argsort(ang, axis=1)
+        ordered = np.take_along_axis(rel, order[..., None], axis=1)
+        on_sorted = np.take_along_axis(on, order, axis=1)
+        nxt = np.roll(ordered, -1, axis=1)
+        # close the polygon: the last valid vertex pairs with the first
+        last = np.maximum(cnt - 1, 0)
+        rows = np.arange(n)
+        nxt[rows, last] = ordered[:, 0]
+        cross = np.cross(ordered, nxt)
+        tri = 0.5 * np.abs(np.einsum("nvj,nj->nv", cross, m)) * on_sorted
+        areas[:, f] = np.where(cnt >= 3, tri.sum(axis=1), 0.0)
+    return areas
+
+
+def cell_hessians(mesh: CellMesh) -> np.ndarray:
+    """(n_cells, 9) per-cell Hessian of the traced quantity (module docstring), per m^2."""
+    pts, valid = cell_vertices(mesh)
+    cnt = valid.sum(axis=1)
+    centre = np.einsum("nvj,nv->nj", np.where(valid[..., None], pts, 0.0), valid) / cnt[:, None]
+    areas = face_areas(mesh, pts, valid)
+    planes = mesh.planes
+    used = mesh.neighbours != FACE_UNUSED
+    dist = np.abs(planes[:, :, 3] - np.einsum("nkj,nj->nk", planes[:, :, :3], centre))
+    volume = np.sum(np.where(used, areas * dist, 0.0), axis=1) / 3.0
+    nb = mesh.neighbours
+    inner = nb >= 0
+    safe = np.where(inner, nb, 0)
+    dg = (mesh.gradient[safe] - mesh.gradient[:, None, :]) * inner[..., None]  # (n, K, 3)
+    m = planes[:, :, :3]
+    weight = np.where(inner, areas / (volume[:, None] + volume[safe]), 0.0)  # (n, K) per m
+    outer = 0.5 * (dg[..., :, None] * m[..., None, :] + m[..., :, None] * dg[..., None, :])  # (n, K, 3, 3)
+    h = np.einsum("nk,nkij->nij", weight, outer)
+    # boundary cells miss the share of the faces they lack (a ground slab would get half its H_zz): scale by
+    # C = M_inner^+ M_all, M = sum of A_f n_f n_f^T over the inner / all used faces (identity inside)
+    nn = m[..., :, None] * m[..., None, :]
+    m_all = np.einsum("nk,nkij->nij", np.where(used, areas, 0.0), nn)
+    m_inner = np.einsum("nk,nkij->nij", np.where(inner, areas, 0.0), nn)
+    edge = ~np.all(inner | ~used, axis=1)
+    if edge.any():
+        c = np.linalg.pinv(m_inner[edge], rcond=0.25) @ m_all[edge]  # poorly covered directions: dropped
+        he = h[edge]
+        h[edge] = 0.5 * (he @ c + np.swapaxes(c, 1, 2) @ he)
+    return np.ascontiguousarray(
+        np.column_stack([h[:, 0, 0], h[:, 1, 1], h[:, 2, 2], h[:, 0, 1], h[:, 0, 2], h[:, 1, 2], centre])
+    )
+
+
+def hessian_of(mesh: CellMesh) -> np.ndarray:
+    """:func:`cell_hessians` of ``mesh``, computed once per mesh (kept for the last few meshes traced)."""
+    key = id(mesh.gradient)
+    hit = _CACHE.get(key)
+    if hit is not None and hit[0] is mesh.gradient:
+        return hit[1]
+    if len(_CACHE) >= _CACHE_SIZE:
+        _CACHE.pop(next(iter(_CACHE)))
+    out = cell_hessians(mesh)
+    _CACHE[key] = (mesh.gradient, out)
+    return out
