@@ -28,7 +28,8 @@ Search, per (source, receiver):
    way. Converged when ``|r - x| <= tolerance_m``.
 3. **Describe** the arrival: exact travel time (``t + along / c`` at the last probe), arc length,
    reflections, caustics passed (sign changes of ``det[X_1, X_2, T]`` sampled along the converged ray,
-   a reflection's mirror flip discounted), the tube's spreading ``sqrt(cos el0 / J)`` (J = |X_1,perp x
+   a reflection's mirror flip discounted; X_k here in the smooth medium, ``probe(..., smooth=True)``, as the
+   beams carry them: docs/physics.md §11), the tube's spreading ``sqrt(cos el0 / J)`` (J = |X_1,perp x
    X_2,perp|, re the free field at 1 m, the same as the beam field's) and per band the complex amplitude
    ``A = spreading * prod Q(cos th_j, s) * exp(-alpha s / 2) * (-i)^caustics`` (the pressure re 1 m free
    field is ``A exp(i omega t)``; e^{-i omega t} time convention as the beam field).
@@ -170,7 +171,7 @@ def launch_direction(el: float, az: float) -> np.ndarray:
     return np.array([math.cos(el) * math.cos(az), math.cos(el) * math.sin(az), math.sin(el)])
 
 
-def _trace_to(model: RayModel, gammas: np.ndarray, time_s: float, *, paraxial: bool, path_samples: int = 0):
+def _trace_to(model: RayModel, gammas: np.ndarray, time_s: float, *, paraxial: bool | str, path_samples: int = 0):
     n = gammas.shape[0]
     dirs = np.array([launch_direction(g[0], g[1]) for g in gammas]).reshape(n, 3)
     return trace(
@@ -190,11 +191,13 @@ def _trace_to(model: RayModel, gammas: np.ndarray, time_s: float, *, paraxial: b
     )
 
 
-def probe(model: RayModel, gamma: np.ndarray, time_s: float, *, central: bool = False) -> Probe:
+def probe(model: RayModel, gamma: np.ndarray, time_s: float, *, central: bool = False, smooth: bool = False) -> Probe:
     """The ray launched at gamma = (el, az) (rad) at travel time ``time_s``, with its launch Jacobian: the
-    paraxial derivatives (exact), or with ``central`` central differences of 5 launches (h = FD_STEP_RAD)."""
+    paraxial derivatives (exact), or with ``central`` central differences of 5 launches (h = FD_STEP_RAD).
+    smooth : the derivatives in the smooth medium instead (trace(paraxial="smooth"), what beams carry: the
+    arrival's spreading and caustics; Newton keeps the mesh's exact Jacobian)."""
     if not central:
-        res = _trace_to(model, np.asarray(gamma, float)[None, :], time_s, paraxial=True)
+        res = _trace_to(model, np.asarray(gamma, float)[None, :], time_s, paraxial="smooth" if smooth else True)
         assert res.paraxial is not None
         par = res.paraxial[0]
         X = np.column_stack([par[0:3], par[3:6]])
@@ -295,7 +298,7 @@ def _caustics(model: RayModel, gamma: np.ndarray, pr: Probe) -> int:
     prev_sign = 0
     prev_k = 0
     for j in range(1, n + 1):
-        sample = pr if j == n else probe(model, gamma, pr.time * j / n)
+        sample = pr if j == n else probe(model, gamma, pr.time * j / n, smooth=True)
         det = float(np.linalg.det(np.column_stack([sample.X[:, 0], sample.X[:, 1], sample.tangent])))
         sign = 1 if det > 0 else (-1 if det < 0 else 0)
         if sign == 0:
@@ -333,6 +336,9 @@ def _amplitudes(model: RayModel, pr: Probe, spreading: float, caustics: int) -> 
 
 def _describe(model: RayModel, r: np.ndarray, gamma: np.ndarray, pr: Probe, iterations: int) -> Arrival:
     q, along = _miss(pr, r)
+    # the tube in the smooth medium (docs/physics.md §11): the mesh's own derivatives jump where the ray
+    # turns near a layer face; the converged ray, time and reflections are the same
+    pr = probe(model, gamma, pr.time, smooth=True)
     t = pr.tangent
     x_perp = pr.X - np.outer(t, t @ pr.X)
     jac = float(np.linalg.norm(np.cross(x_perp[:, 0], x_perp[:, 1])))
