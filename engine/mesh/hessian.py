@@ -119,13 +119,12 @@ def cell_hessians(mesh: CellMesh) -> np.ndarray:
     dg = (mesh.gradient[safe] - mesh.gradient[:, None, :]) * inner[..., None]  # (n, K, 3)
     m = planes[:, :, :3]
     weight = np.where(inner, areas / (volume[:, None] + volume[safe]), 0.0)  # (n, K) per m
-    outer = 0.5 * (dg[..., :, None] * m[..., None, :] + m[..., :, None] * dg[..., None, :])  # (n, K, 3, 3)
-    h = np.einsum("nk,nkij->nij", weight, outer)
+    half = np.einsum("nk,nki,nkj->nij", weight, dg, m)  # sum_f w_f dg_f n_f^T, without (n, K, 3, 3) arrays
+    h = 0.5 * (half + np.swapaxes(half, 1, 2))
     # boundary cells miss the share of the faces they lack (a ground slab would get half its H_zz): scale by
     # C = M_inner^+ M_all, M = sum of A_f n_f n_f^T over the inner / all used faces (identity inside)
-    nn = m[..., :, None] * m[..., None, :]
-    m_all = np.einsum("nk,nkij->nij", np.where(used, areas, 0.0), nn)
-    m_inner = np.einsum("nk,nkij->nij", np.where(inner, areas, 0.0), nn)
+    m_all = np.einsum("nk,nki,nkj->nij", np.where(used, areas, 0.0), m, m)
+    m_inner = np.einsum("nk,nki,nkj->nij", np.where(inner, areas, 0.0), m, m)
     edge = ~np.all(inner | ~used, axis=1)
     if edge.any():
         c = np.linalg.pinv(m_inner[edge], rcond=0.25) @ m_all[edge]  # poorly covered directions: dropped

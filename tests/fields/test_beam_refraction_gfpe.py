@@ -134,7 +134,9 @@ def test_downward_beams_are_ray_theory():
     near a turning point, about 5 m at 100 Hz), not the beams' per-group bookkeeping. Measured (log, b = +1,
     100 Hz, 24 ranges 60-980 m): beams - eigenrays 0.24 dB mean (max 0.70) coherent, 0.14 dB incoherent
     (the six ranges here: 0.28 dB mean, max 0.70, coherent); eigenrays - GFPE 4.8 dB mean (ray theory 4.4 dB
-    too loud on average, about 10 dB near 800 m). About 3 minutes (7,201 bracket rays per receiver)."""
+    too loud on average, about 10 dB near 800 m). With both tubes in the smooth medium (2026-12-03, docs/physics.md
+    §11), the six ranges: 0.16 dB mean, max 0.41, coherent; 0.10 dB mean incoherent (the 24 ranges not
+    re-measured). About 3 minutes (7,201 bracket rays per receiver)."""
     rows = _beams_and_eigenrays("log_down", 100.0)
     coh = np.array([abs(r["tl_coh_100hz"] - r["tl_eig_coh_100hz"]) for r in rows])
     inc = np.array([abs(r["tl_inc_100hz"] - r["tl_eig_inc_100hz"]) for r in rows])
