@@ -27,6 +27,7 @@ from bentray.engine.field_buffers import FieldBuffers
 from bentray.engine.ground_profile import AboveGround
 from bentray.engine.media import Media, Wind, build_media, build_terrain_media
 from bentray.engine.mesh.cells import CellMesh
+from bentray.engine.mesh.hessian import hessian_of
 from bentray.engine.profiles import Profile
 from bentray.engine.result import MeshGeometry, TraceResult
 from bentray.engine.surfaces import SceneSurfaces
@@ -369,6 +370,9 @@ def stage_field_setup(
                 receivers_xyz=receivers_xyz,
                 receiver_bands=receiver_bands,
             )
+            if job.wind is None and job.solver.curve == "parabolic":
+                # the beams' smooth medium (docs/physics.md §11), once per job: it travels with every batch
+                beam_template.tables = beam_template.tables._replace(hessian=hessian_of(mesh))
             return FieldSetup(mesh, beam_template, powers, materials, receivers_xyz)
         # voxels: each ray carries the power of its launch solid angle (a 3D fan)
         per_source = field_stage.launch_solid_angles(job.rays.elevation_deg.values(), job.rays.azimuth_deg.values())

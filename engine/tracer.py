@@ -311,7 +311,9 @@ def trace(
     smooth = (isinstance(field, BeamBuffers) and smooth_beams) or smooth_par
     if smooth and curve == "parabolic" and wind_code == WIND_NONE:
         b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts = fa.beam
-        fa = fa._replace(beam=(b_grid, b_acc, b_tabs._replace(hessian=hessian_of(mesh)), p_grid, p_acc, b_pts))
+        if b_tabs.hessian.shape[0] != mesh.n_cells:  # not given with the field (stages.field_setup gives it)
+            b_tabs = b_tabs._replace(hessian=hessian_of(mesh))
+        fa = fa._replace(beam=(b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts))
     prm = RayParams(
         CURVE_CODES[curve],
         float(c_ref),

@@ -119,7 +119,9 @@ def trace_cuda(
         b_args = beams.kernel_args()
         if smooth_beams and wind_code == WIND_NONE:  # the smooth medium's paraxial state, as trace() does
             b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts = b_args
-            b_args = (b_grid, b_acc, b_tabs._replace(hessian=hessian_of(mesh)), p_grid, p_acc, b_pts)
+            if b_tabs.hessian.shape[0] != mesh.n_cells:
+                b_tabs = b_tabs._replace(hessian=hessian_of(mesh))
+            b_args = (b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts)
     else:
         b_args = no_beam_args()
     timings: dict[str, float] = {}
