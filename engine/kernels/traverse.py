@@ -536,18 +536,21 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
             break
         if par_on and wind_on:  # the effective medium's derivatives (docs/physics.md §10, wind)
             paraxial.tangent_derivs(par, d, p_norm, seg)
-            paraxial.wind_terms(
-                curve,
-                c_ref,
-                (ray_wind, wind_params, e_wind),
-                # beams drop the chord-middle gradient terms (drop_gradient_terms): not computed for them
-                (m_raw, gradient[cell], planes[cell], neighbours[cell], size[cell], mid_ok and not deposit_on, x_mid),
-                x,
-                d,
-                par,
-                seg,
-                pwork,
-            )
+            if deposit_on:  # beams drop the gradient terms: d m0 alone, in closed form
+                paraxial.beam_wind_terms(curve, c_ref, (ray_wind, wind_params, e_wind), m_raw, gradient[cell], x,
+                                         par, seg, pwork)  # fmt: skip
+            else:
+                paraxial.wind_terms(
+                    curve,
+                    c_ref,
+                    (ray_wind, wind_params, e_wind),
+                    (m_raw, gradient[cell], planes[cell], neighbours[cell], size[cell], mid_ok, x_mid),
+                    x,
+                    d,
+                    par,
+                    seg,
+                    pwork,
+                )
             paraxial.finish_terms(par, g, seg)
             if deposit_on:  # beams: each cell's wind gradient taken as fixed (docs/physics.md §11)
                 paraxial.drop_gradient_terms(seg)
