@@ -8,7 +8,7 @@ from typing import Any, NamedTuple
 import numba
 import numpy as np
 
-from bentray.engine.beam_field import BeamBuffers, no_beam_args
+from bentray.engine.beam_field import NO_HESSIAN, BeamBuffers, no_beam_args
 from bentray.engine.constants import (
     BOUNDARY_REFLECT,
     COUNT_CROSSINGS,
@@ -309,11 +309,13 @@ def trace(
         check_material_table(mesh, field)
     fa = _field_args(field, n, curve, paraxial, record_reflections)
     smooth = (isinstance(field, BeamBuffers) and smooth_beams) or smooth_par
+    b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts = fa.beam
     if smooth and curve == "parabolic" and wind_code == WIND_NONE:
-        b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts = fa.beam
         if b_tabs.hessian.shape[0] != mesh.n_cells:  # not given with the field (stages.field_setup gives it)
             b_tabs = b_tabs._replace(hessian=hessian_of(mesh))
-        fa = fa._replace(beam=(b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts))
+    elif b_tabs.hessian.shape[0]:  # smooth_beams=False: the template's Hessians are not used
+        b_tabs = b_tabs._replace(hessian=NO_HESSIAN)
+    fa = fa._replace(beam=(b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts))
     prm = RayParams(
         CURVE_CODES[curve],
         float(c_ref),

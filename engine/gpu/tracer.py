@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from numba import cuda
 
-from bentray.engine.beam_field import BeamBuffers, no_beam_args
+from bentray.engine.beam_field import NO_HESSIAN, BeamBuffers, no_beam_args
 from bentray.engine.constants import COUNT_SIZE, CURVE_CODES, STATE_SIZE
 from bentray.engine.field_buffers import REFLECTION_RECORD_CAP
 from bentray.engine.gpu.beam_device import BeamScratch
@@ -117,11 +117,13 @@ def trace_cuda(
             f_weights = np.ascontiguousarray(beams.ray_amp, dtype=np.float64)
         refl_cap = max(refl_cap, REFLECTION_RECORD_CAP)
         b_args = beams.kernel_args()
+        b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts = b_args
         if smooth_beams and wind_code == WIND_NONE:  # the smooth medium's paraxial state, as trace() does
-            b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts = b_args
             if b_tabs.hessian.shape[0] != mesh.n_cells:
                 b_tabs = b_tabs._replace(hessian=hessian_of(mesh))
-            b_args = (b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts)
+        elif b_tabs.hessian.shape[0]:
+            b_tabs = b_tabs._replace(hessian=NO_HESSIAN)
+        b_args = (b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts)
     else:
         b_args = no_beam_args()
     timings: dict[str, float] = {}
