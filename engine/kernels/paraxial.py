@@ -108,6 +108,8 @@ def onto_face(par, plane, p, g, max_dsig):
     tets it flips tubes (spurious caustics, speckled maps). The traversal passes inf (exact) except when the
     state feeds beams and the face is slanted (constants.BEAM_KICK_BOUND_NZ): then cell size / n (the ridge
     map's point noise 1.7 -> 0.16 dB). trace(paraxial=True) without beams always gets the exact derivatives.
+    Beams without wind (the smooth medium, :func:`smooth_advance`) call this only at boundaries (reflections,
+    exits), with the smooth gradient at the face point.
     """
     mp = plane[0] * p[0] + plane[1] * p[1] + plane[2] * p[2]
     if mp == 0.0:
