@@ -51,6 +51,7 @@ P_REF_INTENSITY = 1e-12  # W/m^2, reference intensity of SPL
 # Reflection-count groups kept apart (0, 1, 2, >= 3 reflections). Memory per slot:
 # groups x N_KMAH x bands x points x 8 bytes (x 2 for complex sums).
 MAX_REFLECTION_GROUPS = 4
+NO_MIRROR = np.zeros((0, 0, 4))  # BeamGrid.mirror without ground images
 NO_HESSIAN = np.zeros((0, 9))  # BeamTables.hessian without a mesh: the exact kicks of the piecewise-linear mesh
 
 
@@ -73,22 +74,32 @@ def _new_acc(bgrid: BeamGrid, n_points: int, n_slots: int) -> BeamAcc:
     coh = bgrid.mode != BEAM_INCOHERENT
     inc = bgrid.mode != BEAM_COHERENT
     s = n_slots
+    near = bgrid.mode == BEAM_INCOHERENT and bgrid.fresnel_k > 0.0
     return BeamAcc(
         np.zeros((s, n_g, n_f, n_points) if coh else (0, 0, 0, 0)),
         np.zeros((s, n_g, n_f, n_points) if coh else (0, 0, 0, 0)),
         np.zeros((s, n_g, n_f, n_points) if inc else (0, 0, 0, 0)),
         np.zeros((s, n_g, n_points)),
         np.zeros((s, n_points)),
+        np.zeros((s, n_g, n_f, n_points) if near else (0, 0, 0, 0)),
+        np.zeros((s, 2, n_g, n_points) if near else (0, 0, 0, 0)),
     )
 
 
 def _empty_acc() -> BeamAcc:
     z4 = np.zeros((0, 0, 0, 0))
-    return BeamAcc(z4, z4, z4, np.zeros((0, 0, 0)), np.zeros((0, 0)))
+    return BeamAcc(z4, z4, z4, np.zeros((0, 0, 0)), np.zeros((0, 0)), z4, z4)
 
 
-def _normalised(acc: BeamAcc, n_refl: int, mode: int) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray]:
+def _normalised(
+    acc: BeamAcc, n_refl: int, mode: int, pooled: bool = False
+) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray]:
     """Slots summed, groups normalised and combined: (p (F, V) or None, energy (F, V) or None, weight (V,)).
+
+    pooled (an incoherent map with Fresnel-widened beams): the energy is normalised by the coverage of all groups
+    together, not group by group; a widened beam straddles the points where its neighbours change group (one more
+    reflection), so each group covers a point only in part while the groups together cover it once, and a
+    normalisation per group would count it up to twice. weight is then that pooled coverage.
 
     BEAM_SEMICOHERENT storage (receivers) returns the coherent sum over all groups *and* the energy sum over
     all groups; the field's semicoherent mode is formed by the caller from the split returned here."""
@@ -100,6 +111,20 @@ def _normalised(acc: BeamAcc, n_refl: int, mode: int) -> tuple[np.ndarray | None
     energy = None
     if mode != BEAM_INCOHERENT:
         p = (acc.s_re.sum(axis=0) + 1j * acc.s_im.sum(axis=0)) * norm[:, None, :]  # (G, F, V)
+    if pooled and mode == BEAM_INCOHERENT:
+        total = weight.sum(axis=0)  # (V,)
+        energy = acc.energy.sum(axis=0)  # (G, F, V)
+        if acc.near_w.shape[0]:
+            near_w = acc.near_w.sum(axis=0)  # (2, G, V)
+            near_amp = acc.near_amp.sum(axis=0)  # (G, F, V)
+            h = near_w[0]
+            # the widened spreading times the nearest rays' amplitude factors, blended in as their own tubes
+            # cover the point (h from 0.25 to 0.75), the widened beams' own mean where they do not
+            blend = np.clip((h - 0.25) / 0.5, 0.0, 1.0)[:, None, :]
+            local = near_w[1][:, None, :] * near_amp / np.maximum(h, 1e-300)[:, None, :]
+            energy = blend * local + (1.0 - blend) * energy
+        energy = energy * (1.0 / np.clip(total, W_FLOOR, 1.0))[None, None, :]
+        return None, energy, total
     if mode != BEAM_COHERENT:
         energy = acc.energy.sum(axis=0) * norm[:, None, :]
     return p, energy, weight.max(axis=0)
@@ -147,7 +172,10 @@ class BeamBuffers:
         self.grid = grid
         self.bgrid = bgrid
         self.tables = tables
-        self.pgrid = pgrid if pgrid is not None else bgrid._replace(mode=BEAM_SEMICOHERENT)
+        # receivers: each beam's own tube, no images (the Fresnel floor is the incoherent map's)
+        self.pgrid = (
+            pgrid if pgrid is not None else bgrid._replace(mode=BEAM_SEMICOHERENT, fresnel_k=0.0, mirror=NO_MIRROR)
+        )
         self.points = points if points is not None else bin_points(np.zeros((0, 3)))
         self.weights = np.ascontiguousarray(weights, dtype=np.float64)
         # (n_rays, F) per-ray amplitude factors of the sources' directivity for this batch (None: omni)
@@ -191,7 +219,7 @@ class BeamBuffers:
         powered = np.any(power > 0)
         if self.grid is not None:
             grid = self.grid
-            p_g, e_g, weight = _normalised(self.acc, self.bgrid.n_refl, self.bgrid.mode)
+            p_g, e_g, weight = _normalised(self.acc, self.bgrid.n_refl, self.bgrid.mode, self.bgrid.fresnel_k > 0.0)
             p = None
             energy = None
             if self.bgrid.mode == BEAM_COHERENT:
@@ -289,6 +317,9 @@ def beam_grid(
     w_min: float,
     max_reflections: int,
     z_offset: np.ndarray | None = None,
+    fresnel_k: float = 0.0,
+    mirror: np.ndarray | None = None,
+    fan_extent: tuple[float, float] = (math.pi, 2.0 * math.pi),
 ) -> BeamGrid:
     """The kernel's BeamGrid (see engine/kernels/beams.py for the meaning of each entry)."""
     nx, ny, _ = grid.shape
@@ -303,6 +334,9 @@ def beam_grid(
         float(w_min),
         int(min(max(max_reflections, 0), MAX_REFLECTION_GROUPS - 1) + 1),
         BEAM_MODES[mode],
+        float(fresnel_k),
+        0.25 * np.asarray(fan_extent, float),
+        NO_MIRROR if mirror is None else np.ascontiguousarray(mirror, float).reshape(nx, ny, 4),
     )
 
 
@@ -324,6 +358,13 @@ def launch_steps(elevation_deg: np.ndarray, azimuth_deg: np.ndarray) -> tuple[fl
     return d_el, d_az
 
 
+def fan_extent(elevation_deg: np.ndarray, azimuth_deg: np.ndarray) -> tuple[float, float]:
+    """Angular extent (rad) of the launch grid along elevation and azimuth: n_k Dgamma_k, the rays' span and half
+    a step either side (a one-value axis: pi and 2 pi, its step as :func:`launch_steps` takes it)."""
+    d_el, d_az = launch_steps(elevation_deg, azimuth_deg)
+    return float(np.size(elevation_deg) * d_el), float(np.size(azimuth_deg) * d_az)
+
+
 def no_beam_args(n_f: int = 1) -> tuple[BeamGrid, BeamAcc, BeamTables, BeamGrid, BeamAcc, BeamPoints]:
     """Kernel arguments of the same types with beams off (tiny arrays, mode BEAM_OFF, no points)."""
     g = BeamGrid(
@@ -337,6 +378,9 @@ def no_beam_args(n_f: int = 1) -> tuple[BeamGrid, BeamAcc, BeamTables, BeamGrid,
         1.0,
         1,
         BEAM_OFF,
+        0.0,
+        np.zeros(2),
+        NO_MIRROR,
     )
     t = BeamTables(np.zeros((1, n_f, 2, 2, 2)), np.zeros(5), np.zeros(n_f), 1.0, NO_HESSIAN)
     return g, _empty_acc(), t, g, _empty_acc(), bin_points(np.zeros((0, 3)))
@@ -354,6 +398,17 @@ def default_min_width_m(frequencies_hz: np.ndarray, c: float) -> float:
     return float(0.5 * c / math.exp(float(np.mean(np.log(f)))))
 
 
+def _incoherent_floor(
+    spec: FieldSpec | None, frequencies_hz: np.ndarray, c_ref: float, ground_planes: np.ndarray | None
+) -> tuple[float, np.ndarray | None]:
+    """(fresnel_k, mirror planes) of BeamGrid: ``2 lambda / pi`` at the highest band and the
+    ground planes for an incoherent map with ``incoherent_width = "fresnel"``, else (0, None)."""
+    if spec is None or spec.mode != "incoherent" or spec.incoherent_width != "fresnel":
+        return 0.0, None
+    f = float(np.max(np.asarray(frequencies_hz, float)))
+    return (c_ref / f) / math.pi, ground_planes
+
+
 def prepare(
     spec: FieldSpec | None,
     *,
@@ -368,6 +423,7 @@ def prepare(
     ground_sound_speed: float,
     n_face_materials: int,
     ground_z: np.ndarray | None = None,
+    ground_planes: np.ndarray | None = None,
     receivers_xyz: np.ndarray | None = None,
     receiver_bands: list[float] | None = None,
 ) -> BeamBuffers:
@@ -377,7 +433,9 @@ def prepare(
     source_powers_w : (n_src, F) W or None; materials : flow resistivity per face material (None rigid);
     n_face_materials : 1 + the largest material index the mesh's faces carry (checked against the table:
     a mismatch would read past it). ground_z : (nx, ny) ground height (m) under each grid column for
-    ``heights = "above_ground"`` (None: absolute heights). spec None: receivers only, with the default
+    ``heights = "above_ground"`` (None: absolute heights). ground_planes : (nx, ny, 4) the ground's tangent plane
+    under each column (unit normal up, offset: ``n.x = d``), the images of an incoherent map's Fresnel-floored
+    beams (None: no images). spec None: receivers only, with the default
     bands and absorption of :func:`receiver_settings`. receivers_xyz : (P, 3) receiver points (m) or None.
     """
     if n_face_materials > len(materials):
@@ -408,6 +466,8 @@ def prepare(
         w_min,
         max_reflections,
         ground_z,
+        *_incoherent_floor(spec, freqs, c_ref, ground_planes),
+        fan_extent(elevation_deg, azimuth_deg),
     )
     if grid is None:
         bgrid = bgrid._replace(mode=BEAM_OFF)

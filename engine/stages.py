@@ -324,6 +324,36 @@ def _grid_ground_z(job: Job, surfaces: SceneSurfaces | None) -> np.ndarray:
     return np.asarray(terrain_height_function(surfaces.terrain, lo, hi)(xy), float).reshape(nx, ny)
 
 
+def _grid_ground_planes(job: Job, surfaces: SceneSurfaces | None) -> np.ndarray:
+    """(nx, ny, 4) the ground's tangent plane under each column of the field grid: unit normal (up) and offset d
+    (n.x = d), from central differences of the terrain height 1 m either side (flat ground: z = domain floor)."""
+    spec = job.field
+    assert spec is not None
+    lo, hi = _domain(job)
+    nx, ny = spec.shape[0], spec.shape[1]
+    gx = spec.origin[0] + spec.spacing[0] * np.arange(nx)
+    gy = spec.origin[1] + spec.spacing[1] * np.arange(ny)
+    x, y = (a.reshape(-1) for a in np.meshgrid(gx, gy, indexing="ij"))
+    if surfaces is None or surfaces.terrain is None:
+        z = np.full(x.shape, float(lo[2]))
+        sx = sy = np.zeros(x.shape)
+    else:
+        from bentray.engine.mesh.terrain import terrain_height_function
+
+        height = terrain_height_function(surfaces.terrain, lo, hi)
+
+        def at(px: np.ndarray, py: np.ndarray) -> np.ndarray:
+            return np.asarray(height(np.stack([px, py], axis=1)), float)
+
+        z = at(x, y)
+        sx = (at(x + 1.0, y) - at(x - 1.0, y)) / 2.0
+        sy = (at(x, y + 1.0) - at(x, y - 1.0)) / 2.0
+    n = np.stack([-sx, -sy, np.ones_like(sx)], axis=1)
+    n /= np.linalg.norm(n, axis=1)[:, None]
+    d = n[:, 0] * x + n[:, 1] * y + n[:, 2] * z
+    return np.concatenate([n, d[:, None]], axis=1).reshape(nx, ny, 4)
+
+
 def stage_field_setup(
     job: Job,
     profile: Profile,
@@ -367,6 +397,7 @@ def stage_field_setup(
                 ground_sound_speed=float(profile.sound_speed(ground_point)[0]),
                 n_face_materials=int(mesh.face_material.max()) + 1 if mesh.face_material.size else 1,
                 ground_z=_grid_ground_z(job, surfaces) if spec is not None and spec.heights == "above_ground" else None,
+                ground_planes=_grid_ground_planes(job, surfaces) if spec is not None else None,
                 receivers_xyz=receivers_xyz,
                 receiver_bands=receiver_bands,
             )

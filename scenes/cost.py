@@ -214,10 +214,13 @@ def estimate_cost(job: Any, threads: int) -> CostEstimate:
         near_grid = grid_diag + 2.0 * min(cell, diagonal)  # path length of one crossing near the grid
         if method == "beams":
             # engine/beam_field.py: per slot, (reflection groups <= 4) x (KMAH 3) x bands x points x 8 B for
-            # each of the coherent (2 arrays) and incoherent (1) sums, plus two per-point arrays
+            # each of the coherent (2 arrays) and incoherent (1) sums, plus two per-point arrays; Fresnel-widened
+            # incoherent maps add the nearest rays' amplitude sums (1 per band) and two per-group sums
             groups = 3 * (min(job.rays.max_reflections, 3) + 1)
-            arrays = {"coherent": 2, "incoherent": 1}.get(spec.mode, 3)
-            field_bytes = (threads + 2) * n_points * (groups * n_bands * arrays + groups + 1) * 8
+            widened = spec.mode == "incoherent" and getattr(spec, "incoherent_width", "tube") == "fresnel"
+            arrays = {"coherent": 2, "incoherent": 2 if widened else 1}.get(spec.mode, 3)
+            per_group = 3 if widened else 1
+            field_bytes = (threads + 2) * n_points * (groups * n_bands * arrays + per_group * groups + 1) * 8
             chord = spec.chord_m if spec.chord_m is not None else min(max(2.0 * min(spec.spacing), 1.0), 10.0)
             # each chord deposits into the points its beam owns: on average a few per point of the grid
             # and crossing for every source (the beams of a fan tile space), plus a stencil per chord

@@ -43,6 +43,13 @@ class FieldSpec(BaseModel):
     the bench's reference point; coherent and incoherent). ``chord_m``: beam chord length along the
     rays (default twice the smallest spacing within [1, 10] m); ``beam_min_width_m``: smallest beam
     half-width at caustics (default half a wavelength at the bands' geometric-mean frequency).
+    ``incoherent_width``: beam widths of an incoherent map: "fresnel" (default) floors each beam's half-width
+    at ``sqrt(lambda s / pi)``, the intensity half-width of the narrowest Gaussian beam that can reach arc
+    length s (lambda of the highest band), returns the part spread below the ground through the ground's
+    tangent plane, and keeps the amplitude factors (reflections, absorption) of the rays nearest each point:
+    ray theory cannot place energy more finely, and where neighbouring rays no longer bound a tube (near-ground
+    wind ducts) the map stays smooth (docs/physics.md §11); "tube": each ray's own tube (the coherent and
+    semicoherent modes and the receivers always use it).
     ``heights``: "absolute" (world z) or "above_ground" (the map product: point (i, j, k) sits at
     ``origin_z + k * spacing_z`` above the ground under it, terrain included; beams only; field.vti then
     holds the grid in (x, y, height above ground)). ``refractive_shadow``: the creeping-wave stage
@@ -70,6 +77,7 @@ class FieldSpec(BaseModel):
     heights: Literal["absolute", "above_ground"] = "absolute"
     chord_m: float | None = Field(default=None, ge=0.05, le=100.0)
     beam_min_width_m: float | None = Field(default=None, ge=1e-3, le=100.0)
+    incoherent_width: Literal["fresnel", "tube"] = "fresnel"
     humidity_percent: float = Field(default=70.0, ge=0.0, le=100.0)
     temperature_c: float = Field(default=15.0, ge=-50.0, le=60.0)
     pressure_kpa: float = Field(default=101.325, gt=0.0, le=200.0)

@@ -63,6 +63,14 @@ def _add_atomic(grid, acc, chord, v, terms):
         for f in range(n_f):
             e = beams.band_energy(amp_a[0, f], amp_a[1, f], amp_b[0, f], amp_b[1, f], u, w, rel_i)
             cuda.atomic.add(acc.energy, (0, group, f, v), e)
+        if acc.near_w.shape[0] > 0:
+            near = terms[beams.PB_NEAR]
+            cuda.atomic.add(acc.near_w, (0, 0, group, v), near)
+            cuda.atomic.add(acc.near_w, (0, 1, group, v), w * rel_i)
+            if near > 0.0:
+                for f in range(n_f):
+                    e = beams.band_energy(amp_a[0, f], amp_a[1, f], amp_b[0, f], amp_b[1, f], u, near, 1.0)
+                    cuda.atomic.add(acc.near_amp, (0, group, f, v), e)
     if grid.mode != BEAM_INCOHERENT:
         tau = terms[PB_TAU]
         amp = terms[PB_AMP]
@@ -91,6 +99,39 @@ def _deposit_chord_atomic(grid, acc, chord, scratch, terms):
                 v = (i * ny + j) * nz + k
                 if beams.point_beam_terms(grid, chord, px, py, zo + k * grid.spacing[2], scratch, terms):
                     _add_atomic(grid, acc, chord, v, terms)
+                    count += 1
+    if grid.mirror.shape[0] > 0:
+        count += _deposit_mirrored_atomic(grid, acc, chord, scratch, terms)
+    return count
+
+
+@cuda.jit(device=True)
+def _deposit_mirrored_atomic(grid, acc, chord, scratch, terms):
+    """``beams._deposit_mirrored`` with atomic accumulation (same images, same terms)."""
+    i0, i1, j0, j1, z_lo, z_hi = beams.chord_box(grid, chord[0], chord[1])
+    if i0 > i1 or j0 > j1:
+        return 0
+    nx = grid.shape[0]
+    ny = grid.shape[1]
+    nz = grid.shape[2]
+    reach = 0.5 * (z_hi - z_lo)
+    img = scratch[beams.POINT_SCRATCH : beams.POINT_SCRATCH + 3]
+    count = 0
+    for i in range(max(i0 - 1, 0), min(i1 + 1, nx - 1) + 1):
+        px = grid.origin[0] + i * grid.spacing[0]
+        for j in range(max(j0 - 1, 0), min(j1 + 1, ny - 1) + 1):
+            py = grid.origin[1] + j * grid.spacing[1]
+            zo = grid.origin[2] + grid.z_offset[i, j]
+            for k in range(nz):
+                pz = zo + k * grid.spacing[2]
+                if not beams.mirror_point(grid, i, j, px, py, pz, reach, img):
+                    if pz > zo + 2.0 * reach + grid.spacing[2]:
+                        break
+                    continue
+                if img[2] < z_lo or img[2] > z_hi:
+                    continue
+                if beams.point_beam_terms(grid, chord, img[0], img[1], img[2], scratch, terms):
+                    _add_atomic(grid, acc, chord, (i * ny + j) * nz + k, terms)
                     count += 1
     return count
 

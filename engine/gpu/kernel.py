@@ -81,7 +81,7 @@ cuda: Any = _cuda  # numba.cuda's grid / local are injected at run time (no type
 _CS_SIZE = curves.CS_SIZE  # module constants: cuda.local.array needs a compile-time literal size
 _PAR_SIZE = paraxial.PAR_SIZE
 _SAMPLE_SIZE = beams.SAMPLE_SIZE
-_POINT_SCRATCH = beams.POINT_SCRATCH
+_WORK_SIZE = beams.WORK_SIZE
 _PB_SIZE = beams.PB_SIZE
 _S_ARC = beams.S_ARC
 THREADS_PER_BLOCK = 128  # rays per block: the loop is register-heavy, small blocks keep occupancy up
@@ -184,7 +184,7 @@ def trace_rays_cuda(mesh, prm, rays, b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts
         amp_cur,
         ist,
         amp0,
-        cuda.local.array(_POINT_SCRATCH, nb.float64),
+        cuda.local.array(_WORK_SIZE, nb.float64),
         cuda.local.array(_PB_SIZE, nb.float64),
     )
     if deposit_on and rays.f_weights.shape[1] == n_bands:  # beams: f_weights = directivity factors

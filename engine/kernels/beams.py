@@ -75,6 +75,8 @@ W_FLOOR = 0.5
 # The caustic floor of a beam's width is at most this fraction of the width of an unfocused tube at the
 # same arc length (arc * Dgamma): it acts where a tube has collapsed, not near the source.
 FLOOR_ARC_REL = 0.25
+# At most this many tube widths in one Fresnel-widened hat (a collapsed tube at a caustic keeps a finite count).
+MAX_WIDEN = 1e6
 
 
 class BeamGrid(NamedTuple):
@@ -87,6 +89,14 @@ class BeamGrid(NamedTuple):
     dgamma : (2,) launch steps (elevation, azimuth) in rad; w_min : smallest beam half-width, m.
     n_refl : number of reflection-count groups (the last one holds all higher counts).
     mode : BEAM_COHERENT | BEAM_INCOHERENT | BEAM_SEMICOHERENT.
+    fresnel_k : m; the incoherent map's width floor is ``sqrt(fresnel_k * arc)`` (``fresnel_k = 2 lambda / pi``:
+        the narrowest Gaussian beam that can reach arc length ``arc``; 0: off, the tube's own width).
+    fresnel_cap : (2,) rad; that floor along launch axis k is at most ``arc * fresnel_cap[k]``, a quarter of the
+        fan's extent along k (a narrow fan, such as a vertical fan a few degrees wide, is then not all edge).
+    mirror : (nx, ny, 4) the ground's tangent plane under each column, unit normal n (up) and offset d
+        (``n.x = d``): each point's mirror image through it is evaluated too, which returns the kernel mass a
+        floored beam spreads below the ground (the reflection method of kernel estimates; docs/physics.md §11);
+        (0, 0, 4): none.
     """
 
     origin: np.ndarray
@@ -99,6 +109,9 @@ class BeamGrid(NamedTuple):
     w_min: float
     n_refl: int
     mode: int
+    fresnel_k: float
+    fresnel_cap: np.ndarray
+    mirror: np.ndarray
 
 
 class BeamAcc(NamedTuple):
@@ -108,6 +121,12 @@ class BeamAcc(NamedTuple):
     energy : (slots, G, F, V) sum of w I / I_1m (size 0 in coherent mode).
     weight : (slots, G, V) sum of hat weights w.
     hits : (slots, V) number of beam contributions (diagnostics: a point no beam reached has 0).
+    near_amp : (slots, G, F, V) sum of h |A|^2 with h the hat of each ray's own tube (Fresnel-widened incoherent
+        maps only, else size 0): the amplitude factors (reflections, absorption) of the rays nearest the point.
+    near_w : (slots, 2, G, V) [0] sum of those tube hats h, [1] sum of w I / I_1m (the spreading alone, widened);
+        size 0 with near_amp. The finaliser forms ``(sum w I) (sum h |A|^2) / (sum h)``: the widened beams smooth
+        the spreading, which is what the rays get wrong where they no longer bound tubes, but not the amplitude
+        factors, which vary fast near a soft ground (docs/physics.md §11).
     """
 
     s_re: np.ndarray
@@ -115,6 +134,8 @@ class BeamAcc(NamedTuple):
     energy: np.ndarray
     weight: np.ndarray
     hits: np.ndarray
+    near_amp: np.ndarray
+    near_w: np.ndarray
 
 
 class BeamPoints(NamedTuple):
@@ -144,12 +165,14 @@ def chord_group(n_refl_groups, reflections, kmah):
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
-def _transverse_basis(x1, x2, t, dg1, dg2, w_min, arc, out):
+def _transverse_basis(x1, x2, t, dg1, dg2, w_min, arc, w_fres, cap1, cap2, out):
     """Orthonormal transverse basis e1, e2 and the triangular map of dgamma into it.
 
     x1, x2 : X_1, X_2 (3,); t : unit tangent. Writes out[0:3] = e1, out[3:6] = e2 and returns
-    (a11, a12, a22, j_raw): ``X_perp dgamma = (a11 dg1 + a12 dg2) e1 + a22 dg2 e2`` with a11 and a22
-    floored so that a_kk * Dgamma_k >= min(w_min, FLOOR_ARC_REL * arc * Dgamma_k); j_raw = |X1p x X2p|.
+    (a11, a12, a22, a11c, a22c): ``X_perp dgamma = (a11 dg1 + a12 dg2) e1 + a22 dg2 e2``. a11c and a22c are
+    floored so that a_kk * Dgamma_k >= min(w_min, FLOOR_ARC_REL * arc * Dgamma_k) (the caustic floor); a11 and
+    a22 are those floored again at min(w_fres, arc * cap_k) / Dgamma_k (w_fres: the incoherent map's Fresnel
+    floor, m, 0 off; cap_k its cap, rad: BeamGrid.fresnel_k and fresnel_cap); without it a_kk = a_kkc.
     """
     a1 = x1[0] * t[0] + x1[1] * t[1] + x1[2] * t[2]
     u0 = x1[0] - a1 * t[0]
@@ -186,7 +209,6 @@ def _transverse_basis(x1, x2, t, dg1, dg2, w_min, arc, out):
     a11 = nu
     a12 = v0 * e0 + v1 * e1_ + v2 * e2_
     a22 = v0 * f0 + v1 * f1 + v2 * f2
-    j_raw = abs(a11 * a22)
     sgn = 1.0 if a22 >= 0.0 else -1.0
     a22 = abs(a22)
     # floors: w_min, but never more than FLOOR_ARC_REL of the width an unfocused tube would have at this
@@ -201,13 +223,24 @@ def _transverse_basis(x1, x2, t, dg1, dg2, w_min, arc, out):
         a11 = 1e-300
     if a22 <= 0.0:
         a22 = 1e-300
+    a11c = a11
+    a22c = a22
+    if w_fres > 0.0:
+        wide1 = min(w_fres, arc * cap1)
+        wide2 = min(w_fres, arc * cap2)
+        # widened by a whole number of tube widths: a hat of half-width m neighbour spacings sampled at the
+        # neighbours sums to m exactly only for integer m (m = 1.25 would give 1.4, +0.5 dB)
+        if a11 * dg1 < wide1:
+            a11 *= min(math.ceil(wide1 / (a11 * dg1)), MAX_WIDEN)
+        if a22 * dg2 < wide2:
+            a22 *= min(math.ceil(wide2 / (a22 * dg2)), MAX_WIDEN)
     out[0] = e0
     out[1] = e1_
     out[2] = e2_
     out[3] = sgn * f0
     out[4] = sgn * f1
     out[5] = sgn * f2
-    return a11, a12, a22, j_raw
+    return a11, a12, a22, a11c, a22c
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -248,6 +281,34 @@ def _reach_bound(sa, sb, dg1, dg2, w_min):
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
+def chord_widening(grid, sa, sb):
+    """How much (m) the Fresnel floor can widen a beam of the chord from sa to sb along each transverse axis: the
+    floor at the chord's larger arc length (the widened hat is at most one tube width more); 0 without it."""
+    if grid.fresnel_k > 0.0:
+        return math.sqrt(grid.fresnel_k * max(sa[S_ARC], sb[S_ARC]))
+    return 0.0
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def mirror_point(grid, i, j, px, py, pz, reach, out):
+    """The image of point (px, py, pz) of column (i, j) through the ground's tangent plane there, into out (3,);
+    False when the grid has no mirror planes or the point is farther than ``reach`` above the plane (the image is
+    then at least 2 reach from every chord above the ground) or below it."""
+    if grid.mirror.shape[0] == 0:
+        return False
+    n0 = grid.mirror[i, j, 0]
+    n1 = grid.mirror[i, j, 1]
+    n2 = grid.mirror[i, j, 2]
+    h = n0 * px + n1 * py + n2 * pz - grid.mirror[i, j, 3]
+    if h < 0.0 or h > reach:
+        return False
+    out[0] = px - 2.0 * h * n0
+    out[1] = py - 2.0 * h * n1
+    out[2] = pz - 2.0 * h * n2
+    return True
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
 def _misses(lo, hi, origin, spacing, n):
     """True when no grid coordinate origin + i spacing (0 <= i < n) lies in [lo, hi] (the span tested
     without the integer conversion of :func:`_index_range`)."""
@@ -259,7 +320,7 @@ def chord_far(grid, sa, sb):
     """True when the chord from sa to sb cannot reach the grid's columns (chord_box's first test): checked
     before :func:`deposit_chord` is called, so that the nine chords in ten that miss the grid pay neither the
     call nor the reference counts of its tuple of arrays."""
-    bound = _reach_bound(sa, sb, grid.dgamma[0], grid.dgamma[1], grid.w_min)
+    bound = _reach_bound(sa, sb, grid.dgamma[0], grid.dgamma[1], grid.w_min) + 2.0 * chord_widening(grid, sa, sb)
     return _misses(
         min(sa[S_X], sb[S_X]) - bound, max(sa[S_X], sb[S_X]) + bound, grid.origin[0], grid.spacing[0], grid.shape[0]
     ) or _misses(
@@ -304,8 +365,11 @@ PB_REL_I = 1
 PB_U = 2
 PB_TAU = 3
 PB_AMP = 4
-PB_SIZE = 5
+PB_NEAR = 5  # the hat of the ray's own tube at the point (h1 h2 of the unwidened tube; = w without widening)
+PB_SIZE = 6
 POINT_SCRATCH = 15  # work array of point_beam_terms (transverse basis, X1, X2 and the tangent at the foot)
+# BeamRay.work holds POINT_SCRATCH + 3: the last three hold a mirrored point (deposit_chord's ground images)
+WORK_SIZE = POINT_SCRATCH + 3
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
@@ -345,7 +409,10 @@ def point_beam_terms(grid, chord, px, py, pz, scratch, terms):
         x1[a] = v_ * sa[S_X1 + a] + u * sb[S_X1 + a]
         x2[a] = v_ * sa[S_X2 + a] + u * sb[S_X2 + a]
     arc = v_ * sa[S_ARC] + u * sb[S_ARC]
-    a11, a12, a22, _ = _transverse_basis(x1, x2, tf, dg1, dg2, grid.w_min, arc, basis)
+    w_fres = math.sqrt(grid.fresnel_k * arc) if grid.fresnel_k > 0.0 else 0.0
+    a11, a12, a22, a11c, a22c = _transverse_basis(
+        x1, x2, tf, dg1, dg2, grid.w_min, arc, w_fres, grid.fresnel_cap[0], grid.fresnel_cap[1], basis
+    )
     qa = q0 * tf[0] + q1 * tf[1] + q2 * tf[2]
     qp0 = q0 - qa * tf[0]
     qp1 = q1 - qa * tf[1]
@@ -360,13 +427,23 @@ def point_beam_terms(grid, chord, px, py, pz, scratch, terms):
     h2 = 1.0 - abs(g2) / dg2
     if h2 <= 0.0:
         return False
+    # w: the hat's share of a partition of unity, h1 h2 (a11c a22c) / (a11 a22) for a hat widened by the Fresnel
+    # floor (h1 h2 without it); rel_i: the tube's intensity. Then w rel_i = h1 h2 launch_cos / (a11 a22) spreads
+    # the ray's energy over the widened footprint while sum w still measures how fully rays cover the point.
     w = h1 * h2
-    rel_i = launch_cos / (a11 * a22)
+    near = w
+    if w_fres > 0.0:
+        w *= (a11c / a11) * (a22c / a22)
+        g2c = c2 / a22c
+        g1c = (c1 - a12 * g2c) / a11c
+        near = max(1.0 - abs(g1c) / dg1, 0.0) * max(1.0 - abs(g2c) / dg2, 0.0)
+    rel_i = launch_cos / (a11c * a22c)
     terms[PB_W] = w
     terms[PB_REL_I] = rel_i
     terms[PB_U] = u
     terms[PB_TAU] = 0.0
     terms[PB_AMP] = 0.0
+    terms[PB_NEAR] = near
     if grid.mode != BEAM_INCOHERENT:
         # travel time to the point: foot time, along-tangent offset, wavefront curvature
         pd0 = 0.0
@@ -422,6 +499,15 @@ def _accumulate(grid, acc, slot, amp_a, amp_b, group, kmah, v, terms):
             acc.energy[slot, group, f, v] += band_energy(
                 amp_a[0, f], amp_a[1, f], amp_b[0, f], amp_b[1, f], u, w, rel_i
             )
+        if acc.near_w.shape[0] > 0:
+            near = terms[PB_NEAR]
+            acc.near_w[slot, 0, group, v] += near
+            acc.near_w[slot, 1, group, v] += w * rel_i
+            if near > 0.0:
+                for f in range(n_f):
+                    acc.near_amp[slot, group, f, v] += band_energy(
+                        amp_a[0, f], amp_a[1, f], amp_b[0, f], amp_b[1, f], u, near, 1.0
+                    )
     if grid.mode != BEAM_INCOHERENT:
         tau = terms[PB_TAU]
         amp = terms[PB_AMP]
@@ -445,8 +531,9 @@ def _point_beam(grid, acc, slot, chord, px, py, pz, v, scratch, terms):
 @nb.njit(**NJIT_FLAGS)
 def chord_reach(grid, sa, sb):
     """Transverse reach (m) of the beams of the chord from sample sa to sb (the search box's margin)."""
-    return max(_half_width(sa, grid.dgamma[0], grid.dgamma[1], grid.w_min),
+    tube = max(_half_width(sa, grid.dgamma[0], grid.dgamma[1], grid.w_min),
                _half_width(sb, grid.dgamma[0], grid.dgamma[1], grid.w_min))  # fmt: skip
+    return tube + 2.0 * chord_widening(grid, sa, sb)
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -456,7 +543,7 @@ def chord_box(grid, sa, sb):
     bounding box, widened by a bound of its reach, misses the grid's columns returns an empty range at once."""
     nx = grid.shape[0]
     ny = grid.shape[1]
-    bound = _reach_bound(sa, sb, grid.dgamma[0], grid.dgamma[1], grid.w_min)
+    bound = _reach_bound(sa, sb, grid.dgamma[0], grid.dgamma[1], grid.w_min) + 2.0 * chord_widening(grid, sa, sb)
     if _misses(
         min(sa[S_X], sb[S_X]) - bound, max(sa[S_X], sb[S_X]) + bound, grid.origin[0], grid.spacing[0], nx
     ) or _misses(
@@ -508,6 +595,41 @@ def deposit_chord(grid, acc, slot, chord, scratch, terms):
             for k in range(k0, k1 + 1):
                 v = (i * ny + j) * nz + k
                 if _point_beam(grid, acc, slot, chord, px, py, zo + k * grid.spacing[2], v, scratch, terms):
+                    count += 1
+    if grid.mirror.shape[0] > 0:
+        count += _deposit_mirrored(grid, acc, slot, chord, scratch, terms)
+    return count
+
+
+@nb.njit(**NJIT_FLAGS)
+def _deposit_mirrored(grid, acc, slot, chord, scratch, terms):
+    """The chord's beam at the ground images of the grid points near the ground (BeamGrid.mirror), added to the
+    points themselves: the kernel mass a floored beam spreads below the ground comes back (docs/physics.md §11).
+    The column box is the chord's, one column wider each way (an image moves sideways by 2 h sin(slope))."""
+    i0, i1, j0, j1, z_lo, z_hi = chord_box(grid, chord[0], chord[1])
+    if i0 > i1 or j0 > j1:
+        return 0
+    nx = grid.shape[0]
+    ny = grid.shape[1]
+    nz = grid.shape[2]
+    reach = 0.5 * (z_hi - z_lo)  # at least the chord's transverse reach
+    img = scratch[POINT_SCRATCH : POINT_SCRATCH + 3]
+    count = 0
+    for i in range(max(i0 - 1, 0), min(i1 + 1, nx - 1) + 1):
+        px = grid.origin[0] + i * grid.spacing[0]
+        for j in range(max(j0 - 1, 0), min(j1 + 1, ny - 1) + 1):
+            py = grid.origin[1] + j * grid.spacing[1]
+            zo = grid.origin[2] + grid.z_offset[i, j]
+            for k in range(nz):
+                pz = zo + k * grid.spacing[2]
+                if not mirror_point(grid, i, j, px, py, pz, reach, img):
+                    if pz > zo + 2.0 * reach + grid.spacing[2]:
+                        break
+                    continue
+                if img[2] < z_lo or img[2] > z_hi:
+                    continue
+                v = (i * ny + j) * nz + k
+                if _point_beam(grid, acc, slot, chord, img[0], img[1], img[2], v, scratch, terms):
                     count += 1
     return count
 
@@ -609,7 +731,7 @@ def new_ray(n_f):
         np.zeros((2, n_f)),
         np.zeros(3, np.int64),
         np.ones(n_f),
-        np.zeros(POINT_SCRATCH),
+        np.zeros(WORK_SIZE),
         np.zeros(PB_SIZE),
     )
 
