@@ -89,8 +89,9 @@ class BeamGrid(NamedTuple):
     dgamma : (2,) launch steps (elevation, azimuth) in rad; w_min : smallest beam half-width, m.
     n_refl : number of reflection-count groups (the last one holds all higher counts).
     mode : BEAM_COHERENT | BEAM_INCOHERENT | BEAM_SEMICOHERENT.
-    fresnel_k : m; the incoherent map's width floor is ``sqrt(fresnel_k * arc)`` (``fresnel_k = 2 lambda / pi``:
-        the narrowest Gaussian beam that can reach arc length ``arc``; 0: off, the tube's own width).
+    fresnel_k : m; the incoherent map's width floor is ``sqrt(fresnel_k * arc)`` (``fresnel_k = lambda / pi``,
+        lambda of the highest band: the intensity half-width of the narrowest Gaussian beam that can reach arc
+        length ``arc``; 0: off, the tube's own width).
     fresnel_cap : (2,) rad; that floor along launch axis k is at most ``arc * fresnel_cap[k]``, a quarter of the
         fan's extent along k (a narrow fan, such as a vertical fan a few degrees wide, is then not all edge).
     mirror : (nx, ny, 4) the ground's tangent plane under each column, unit normal n (up) and offset d
