@@ -398,12 +398,17 @@ def default_min_width_m(frequencies_hz: np.ndarray, c: float) -> float:
     return float(0.5 * c / math.exp(float(np.mean(np.log(f)))))
 
 
+def widens_incoherent_beams(spec: FieldSpec | None) -> bool:
+    """Whether a field's beams are Fresnel-widened (an incoherent map with ``incoherent_width = "fresnel"``)."""
+    return spec is not None and spec.mode == "incoherent" and spec.incoherent_width == "fresnel"
+
+
 def _incoherent_floor(
     spec: FieldSpec | None, frequencies_hz: np.ndarray, c_ref: float, ground_planes: np.ndarray | None
 ) -> tuple[float, np.ndarray | None]:
-    """(fresnel_k, mirror planes) of BeamGrid: ``2 lambda / pi`` at the highest band and the
+    """(fresnel_k, mirror planes) of BeamGrid: ``lambda / pi`` at the highest band and the
     ground planes for an incoherent map with ``incoherent_width = "fresnel"``, else (0, None)."""
-    if spec is None or spec.mode != "incoherent" or spec.incoherent_width != "fresnel":
+    if spec is None or not widens_incoherent_beams(spec):
         return 0.0, None
     f = float(np.max(np.asarray(frequencies_hz, float)))
     return (c_ref / f) / math.pi, ground_planes

@@ -308,6 +308,16 @@ def resolve_receivers(job: Job, surfaces: SceneSurfaces | None) -> np.ndarray:
     return xyz
 
 
+def _grid_columns(job: Job) -> tuple[np.ndarray, np.ndarray]:
+    """x, y (nx * ny,) of the field grid's columns, i-major (the grid's point order)."""
+    spec = job.field
+    assert spec is not None
+    gx = spec.origin[0] + spec.spacing[0] * np.arange(spec.shape[0])
+    gy = spec.origin[1] + spec.spacing[1] * np.arange(spec.shape[1])
+    x, y = np.meshgrid(gx, gy, indexing="ij")
+    return x.reshape(-1), y.reshape(-1)
+
+
 def _grid_ground_z(job: Job, surfaces: SceneSurfaces | None) -> np.ndarray:
     """(nx, ny) ground height (m) under each column of the field grid: the terrain, else the flat ground."""
     spec = job.field
@@ -318,10 +328,10 @@ def _grid_ground_z(job: Job, surfaces: SceneSurfaces | None) -> np.ndarray:
         return np.full((nx, ny), float(lo[2]))
     from bentray.engine.mesh.terrain import terrain_height_function
 
-    gx = spec.origin[0] + spec.spacing[0] * np.arange(nx)
-    gy = spec.origin[1] + spec.spacing[1] * np.arange(ny)
-    xy = np.stack(np.meshgrid(gx, gy, indexing="ij"), axis=-1).reshape(-1, 2)
-    return np.asarray(terrain_height_function(surfaces.terrain, lo, hi)(xy), float).reshape(nx, ny)
+    x, y = _grid_columns(job)
+    return np.asarray(terrain_height_function(surfaces.terrain, lo, hi)(np.stack([x, y], axis=1)), float).reshape(
+        nx, ny
+    )
 
 
 def _grid_ground_planes(job: Job, surfaces: SceneSurfaces | None) -> np.ndarray:
@@ -331,9 +341,7 @@ def _grid_ground_planes(job: Job, surfaces: SceneSurfaces | None) -> np.ndarray:
     assert spec is not None
     lo, hi = _domain(job)
     nx, ny = spec.shape[0], spec.shape[1]
-    gx = spec.origin[0] + spec.spacing[0] * np.arange(nx)
-    gy = spec.origin[1] + spec.spacing[1] * np.arange(ny)
-    x, y = (a.reshape(-1) for a in np.meshgrid(gx, gy, indexing="ij"))
+    x, y = _grid_columns(job)
     if surfaces is None or surfaces.terrain is None:
         z = np.full(x.shape, float(lo[2]))
         sx = sy = np.zeros(x.shape)
@@ -397,7 +405,7 @@ def stage_field_setup(
                 ground_sound_speed=float(profile.sound_speed(ground_point)[0]),
                 n_face_materials=int(mesh.face_material.max()) + 1 if mesh.face_material.size else 1,
                 ground_z=_grid_ground_z(job, surfaces) if spec is not None and spec.heights == "above_ground" else None,
-                ground_planes=_grid_ground_planes(job, surfaces) if spec is not None else None,
+                ground_planes=_grid_ground_planes(job, surfaces) if beam_field.widens_incoherent_beams(spec) else None,
                 receivers_xyz=receivers_xyz,
                 receiver_bands=receiver_bands,
             )
