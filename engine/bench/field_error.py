@@ -118,36 +118,59 @@ def image_errors(tl: np.ndarray) -> dict[str, float]:
 
 
 def paraxial_cost(quick: bool) -> Table:
-    """Trace time with the paraxial state carried (``paraxial=True``) against the plain traversal, same
-    rays, rounds interleaved in one process (best of each): the desert terrain mesh and the A-LD slabs."""
+    """Trace time with the paraxial state carried (``paraxial=True``) against the same trace without it, same
+    rays, rounds interleaved in one process (best of each), on the desert terrain mesh: the parabolic curve,
+    the circular curve (its own mesh, constant grad c per cell) and the parabolic curve with a log-law wind
+    (u* 0.4 m/s, z_g 0.05 m, toward +x). ``ratio``: against what a job without the state runs (the lean kernel for
+    the plain parabolic trace, kernels/lean.py); ``ratio_generic``: against the same trace on the generic kernel
+    (the state's own cost)."""
     from bentray.engine.bench.scene_meshes import build_scene_mesh
     from bentray.engine.tracer import trace
+    from bentray.engine.wind import wind_spec
 
     table = Table(
         "paraxial_cost",
         "Cost of carrying the paraxial state (one thread)",
-        ["case", "rays", "crossings", "plain_s", "paraxial_s", "ratio"],
+        ["case", "rays", "crossings", "plain_s", "generic_plain_s", "paraxial_s", "ratio", "ratio_generic"],
     )
     rounds = 2 if quick else 5
-    for name, n in (("desert", 1000 if quick else 4000),):
-        sc = build_scene_mesh(name, n)
+    n = 1000 if quick else 4000
+    cases: list[tuple[str, str, bool]] = [("desert", "parabolic", False), ("desert", "circular", False)]
+    cases.append(("desert", "parabolic", True))
+    for name, curve, windy in cases:
+        sc = build_scene_mesh(name, n, curve=curve)
         kw: dict[str, Any] = {"max_time_s": 10.0, "max_reflections": 3}
-        args = (sc.mesh, "parabolic", 340.0, sc.origins, sc.directions, sc.start_cells)
-        best = {False: np.inf, True: np.inf}
+        if windy:
+            ground_z = float(sc.origins[0, 2]) - 10.0  # the log law's zero about the source's ground
+            kw["wind"] = wind_spec("log", {"u_star": 0.4, "z_g": 0.05, "direction_deg": 0.0, "ground_z_m": ground_z})
+        args = (sc.mesh, curve, 340.0, sc.origins, sc.directions, sc.start_cells)
+        # "plain": what a job without paraxial state runs (the lean kernel when it applies); "generic": the same
+        # trace on the generic kernel, so the paraxial state's own cost is the ratio to it
+        variants: dict[str, dict[str, Any]] = {
+            "plain": {},
+            "generic": {"kernel": "generic"},
+            "paraxial": {"paraxial": True},
+        }
+        best = dict.fromkeys(variants, np.inf)
         res = trace(*args, **kw)
-        trace(*args, paraxial=True, **kw)
+        for extra in variants.values():
+            trace(*args, **{**kw, **extra})
         for r in range(rounds):
-            for par in (False, True) if r % 2 == 0 else (True, False):
+            order = list(variants) if r % 2 == 0 else list(variants)[::-1]
+            for key in order:
                 t0 = time.perf_counter()
-                trace(*args, paraxial=par, **kw)
-                best[par] = min(best[par], time.perf_counter() - t0)
+                trace(*args, **{**kw, **variants[key]})
+                best[key] = min(best[key], time.perf_counter() - t0)
+        label = name if curve == "parabolic" and not windy else f"{name} {curve}" + (" wind" if windy else "")
         table.add(
-            case=name,
+            case=label,
             rays=int(sc.origins.shape[0]),
             crossings=int(res.crossings.sum()),
-            plain_s=round(best[False], 4),
-            paraxial_s=round(best[True], 4),
-            ratio=round(best[True] / best[False], 3),
+            plain_s=round(best["plain"], 4),
+            generic_plain_s=round(best["generic"], 4),
+            paraxial_s=round(best["paraxial"], 4),
+            ratio=round(best["paraxial"] / best["plain"], 3),
+            ratio_generic=round(best["paraxial"] / best["generic"], 3),
         )
     return table
 
