@@ -28,20 +28,20 @@ from bentray.engine.constants import (
 from bentray.engine.errors import MaterialTableError
 from bentray.engine.field_buffers import REFLECTION_RECORD_CAP, FieldBuffers, no_field_tuple
 from bentray.engine.kernels.field import FieldAcc
-from bentray.engine.kernels.lean import trace_block_lean
+from bentray.engine.kernels.lean import trace_block_lanes
 from bentray.engine.kernels.traverse import PAR_OUT_SIZE, PathBuffers, RayParams, Rays, trace_rays
 from bentray.engine.mesh.cells import CellMesh
 from bentray.engine.mesh.hessian import hessian_of
+from bentray.engine.mesh.packed import packed_cells
 from bentray.engine.result import RayPaths, TraceResult
 from bentray.engine.wind import WIND_NONE, check_wind
 
 KERNELS = ("auto", "generic", "lean")
-# Lean-kernel prefetch level (kernels/lean.py: 0 none, 1 the next cell once its face is known, 2 also every
-# neighbour on cell entry). `bentray bench --only throughput` times all three. Measured (10,000 rays, one core,
-# 2 interleaved rounds, shared machine): desert p0/p1/p2 1.43/1.25/1.30x the generic kernel at load 4.2, then
-# 1.29/1.51/2.02x at load 6-10; A-LD slabs 1.24/0.99/0.82x, then 1.23/1.15/1.10x. Inconclusive on the desert
-# under that load and a loss on slabs both times, so none by default until a quiet machine decides.
-LEAN_PREFETCH = 0
+# Lean kernel (kernels/lean.py): rays in flight per thread and whether each ray's next cell record is
+# prefetched once its exit face is known. `bentray bench --only throughput` times 1 lane without prefetch
+# against LEAN_LANES lanes with it; the final states are the same bits for every setting.
+LEAN_LANES = 8
+LEAN_PREFETCH = 1
 
 
 def path_capacity(path_samples: int, max_reflections: int) -> int:
@@ -207,13 +207,18 @@ def trace_lean(
     max_reflections: int,
     max_steps: int = 10_000_000,
     prefetch: int = LEAN_PREFETCH,
+    lanes: int = LEAN_LANES,
 ) -> TraceResult:
     """The plain parabolic trace on the lean kernel (kernels/lean.py): the final states of :func:`trace`
     bit for bit, without paths, field, wind or paraxial state. Arguments as in :func:`trace`; prefetch :
-    0, 1 or 2 (LEAN_PREFETCH). Returns a TraceResult with launch angles NaN (the caller fills them in)."""
+    0 or 1, lanes : rays in flight per thread, >= 1 (LEAN_PREFETCH, LEAN_LANES); the mesh's packed records
+    (mesh/packed.py) are built on the first trace of a mesh and kept while it lives. Returns a TraceResult
+    with launch angles NaN (the caller fills them in)."""
     origins, directions, start_cells = ray_inputs("parabolic", origins, directions, start_cells, max_time_s)
-    if prefetch not in (0, 1, 2):
-        raise ValueError(f"prefetch must be 0, 1 or 2, got {prefetch!r}")
+    if prefetch not in (0, 1):
+        raise ValueError(f"prefetch must be 0 or 1, got {prefetch!r}")
+    if int(lanes) < 1:
+        raise ValueError(f"lanes must be at least 1, got {lanes!r}")
     n = origins.shape[0]
     rays = Rays(
         origins,
@@ -226,14 +231,15 @@ def trace_lean(
         np.zeros((n, COUNT_SIZE), dtype=np.int64),
         np.full((0, PAR_OUT_SIZE), np.nan),
     )
-    limits = (float(max_time_s), int(max_reflections), int(max_steps), int(prefetch))
-    args = (mesh, float(c_ref), limits, origins, directions, start_cells, rays.out_state, rays.out_counts)
+    limits = (float(max_time_s), int(max_reflections), int(max_steps), int(prefetch), int(lanes))
+    packed = packed_cells(mesh)
+    args = (packed, mesh, float(c_ref), limits, origins, directions, start_cells, rays.out_state, rays.out_counts)
     blocks = lean_blocks(n, int(numba.get_num_threads()))
     if len(blocks) <= 1:
-        trace_block_lean(*args, 0, n)
+        trace_block_lanes(*args, 0, n)
     else:  # contiguous blocks of neighbouring rays, one per thread (the kernel releases the GIL)
         with ThreadPoolExecutor(max_workers=min(len(blocks), int(numba.get_num_threads()))) as pool:
-            list(pool.map(lambda span: trace_block_lean(*args, span[0], span[1]), blocks))
+            list(pool.map(lambda span: trace_block_lanes(*args, span[0], span[1]), blocks))
     return _trace_result(rays, None, False, False)
 
 

@@ -10,7 +10,10 @@ From these, :func:`crossing_bounds` turns a mesh into two lower bounds for one c
 the cache lines one cell's records span (every array's row, counted with its true byte offsets, averaged
 over cells) times 64 B / bandwidth (a crossing that always misses every cache), and *arithmetic* = the
 per-crossing operation counts of the parabolic walk (``CROSSING_OPS``: the issue-18 count for a tet, about
-215 flops, 9 square roots, 17 divisions and 1 log1p) times the measured costs. The traversal's measured ns
+215 flops, 9 square roots, 17 divisions and 1 log1p, less the closed-form arc length's 7 divisions and log1p
+and plus about 20 flops for the Gauss-Legendre arc length that replaced it in most segments) times the
+measured costs. The lean kernel reads packed records (mesh/packed.py), whose lines per cell give a second
+memory bound. The traversal's measured ns
 per crossing against both lets readers compare across machines.
 
 The microkernels are compiled here with ``numba.jit(nopython=True)`` and no on-disk cache (they are tiny,
@@ -28,8 +31,9 @@ import numpy as np
 
 __all__ = ["CROSSING_OPS", "crossing_bounds", "measure_machine"]
 
-# per tet crossing of the parabolic walk (issue 18's count): flops (+, -, *), square roots, divisions, log1p
-CROSSING_OPS = {"flops": 215, "sqrt": 9, "div": 17, "log1p": 1}
+# per tet crossing of the parabolic walk: flops (+, -, *), square roots, divisions, log1p (issue 18's count
+# with the arc length by 3-point Gauss-Legendre quadrature: parabolic.arc_length)
+CROSSING_OPS = {"flops": 235, "sqrt": 9, "div": 10, "log1p": 0}
 LINE = 64
 
 
@@ -131,8 +135,11 @@ def crossing_bounds(mesh: Any, costs: dict[str, float]) -> dict[str, float]:
 
     lines_per_cell : cache lines the walk's records of one cell span (planes, neighbours, neighbour_face,
     media_ref, ref_point, gradient, size); memory_ns : lines_per_cell x 64 B at the triad bandwidth;
+    packed_lines / packed_memory_ns : the same for the lean kernel's packed record (mesh/packed.py);
     arithmetic_ns : CROSSING_OPS at the measured operation costs.
     """
+    from bentray.engine.mesh.packed import record_width
+
     arrays = (mesh.planes, mesh.neighbours, mesh.neighbour_face, mesh.media_ref, mesh.ref_point, mesh.gradient)
     lines = sum(_row_lines(a) for a in (*arrays, mesh.size))
     memory_ns = lines * LINE / (costs["triad_gb_s"] * 1e9) * 1e9
@@ -143,4 +150,11 @@ def crossing_bounds(mesh: Any, costs: dict[str, float]) -> dict[str, float]:
         + ops["div"] * costs["div_s"]
         + ops["log1p"] * costs["log1p_s"]
     )
-    return {"lines_per_cell": lines, "memory_ns": memory_ns, "arithmetic_ns": arith_s * 1e9}
+    packed_lines = record_width(mesh.planes.shape[1]) * 8 / LINE
+    return {
+        "lines_per_cell": lines,
+        "memory_ns": memory_ns,
+        "packed_lines": packed_lines,
+        "packed_memory_ns": packed_lines * LINE / (costs["triad_gb_s"] * 1e9) * 1e9,
+        "arithmetic_ns": arith_s * 1e9,
+    }

@@ -9,8 +9,10 @@ mesh (delta 1e-8, the same sphere of rays from 1.5 m) is measured too, so the se
 terrain mesh builder is unavailable.
 
 Kernels (tracer.trace): ``generic`` (traverse.trace_rays, what every trace with a field, paths, wind or
-paraxial state runs) and ``lean`` (kernels/lean.py, the plain parabolic trace; bit-identical final
-states) at prefetch levels 0, 1 and 2. With 1 numba thread and with all of them (restored afterwards).
+paraxial state runs) and ``lean`` (kernels/lean.py, the plain parabolic trace on packed cell records;
+bit-identical final states) with one ray in flight and no prefetch (``lean 1 lane``), and with
+tracer.LEAN_LANES rays in flight and each next record prefetched (the default). With 1 numba thread and with
+all of them (restored afterwards).
 Timing: ``rounds`` interleaved rounds (every kernel once per round, in turn, so that a change in the
 machine's load hits all alike), each the best of ``repeats`` warm runs; a kernel's time is its best over
 rounds; the ratios compare times of the same run. The load average is printed beside the numbers.
@@ -37,7 +39,7 @@ from bentray.engine.bench.machine import crossing_bounds, measure_machine
 from bentray.engine.bench.scene_meshes import SceneMesh, SceneUnavailable, build_scene_mesh
 from bentray.engine.compile_time import compile_timer
 from bentray.engine.result import TraceResult
-from bentray.engine.tracer import LEAN_PREFETCH, trace, trace_lean
+from bentray.engine.tracer import LEAN_LANES, trace, trace_lean
 
 __all__ = ["run", "measure_kernels", "KERNELS"]
 
@@ -62,7 +64,8 @@ COLUMNS = [
     "note",
 ]
 MACHINE_COLUMNS = ["quantity", "value", "unit"]
-KERNELS = ("generic", "lean p0", "lean p1", "lean p2")
+LEAN_DEFAULT = f"lean {LEAN_LANES} lanes"
+KERNELS = ("generic", "lean 1 lane", LEAN_DEFAULT)
 PAPER_NS = 122.0  # the paper's Desert(m): 219 ms for 10K rays x 179 cells on one 3.2 GHz core (2016)
 
 
@@ -71,8 +74,9 @@ def _runner(sc: SceneMesh, kernel: str) -> Callable[[], TraceResult]:
     args = (sc.mesh, 340.0, sc.origins, sc.directions, sc.start_cells)
     if kernel == "generic":
         return lambda: trace(sc.mesh, "parabolic", 340.0, *args[2:], kernel="generic", **kw)
-    prefetch = int(kernel.split("p")[-1])
-    return lambda: trace_lean(*args, prefetch=prefetch, **kw)
+    if kernel == "lean 1 lane":
+        return lambda: trace_lean(*args, prefetch=0, lanes=1, **kw)
+    return lambda: trace_lean(*args, **kw)  # the defaults: LEAN_LANES lanes, prefetch
 
 
 def measure_kernels(
@@ -111,6 +115,8 @@ def _machine_table(costs: dict[str, float], bounds: dict[str, dict[str, float]])
     for scene, b in bounds.items():
         table.add(quantity=f"{scene}: cache lines per cell", value=b["lines_per_cell"], unit="lines")
         table.add(quantity=f"{scene}: memory bound per crossing", value=b["memory_ns"], unit="ns")
+        table.add(quantity=f"{scene}: cache lines per packed record (lean)", value=b["packed_lines"], unit="lines")
+        table.add(quantity=f"{scene}: memory bound per crossing, packed", value=b["packed_memory_ns"], unit="ns")
         table.add(quantity=f"{scene}: arithmetic bound per crossing", value=b["arithmetic_ns"], unit="ns")
     return table
 
@@ -159,7 +165,7 @@ def run(quick: bool, scene_cache: dict[str, Any] | None = None) -> Section:
                     crossings_per_s_per_core=crossings / elapsed / threads,
                     ns_per_crossing_per_core=ns,
                     speedup_vs_generic=t_generic / elapsed,
-                    x_memory_bound=ns / b["memory_ns"],
+                    x_memory_bound=ns / b["memory_ns" if kernel == "generic" else "packed_memory_ns"],
                     x_arithmetic_bound=ns / b["arithmetic_ns"],
                     rays_per_s=n / elapsed,
                     compile_s=compiled[kernel],
@@ -172,8 +178,9 @@ def run(quick: bool, scene_cache: dict[str, Any] | None = None) -> Section:
         f"{count} rays over the sphere, 10 s, at most 3 reflections, parabolic curve; {rounds} interleaved round(s) "
         f"of {repeats} warm run(s) per kernel, best taken. Load average (1 min) {load_before[0]:.1f} before, "
         f"{load_after[0]:.1f} after: on a shared machine compare the ratios of one run, not absolute times. "
-        f"`lean pN`: kernels/lean.py at prefetch level N (bit-identical final states; the default is "
-        f"p{LEAN_PREFETCH}). Paper reference (one 3.2 GHz core, 2016): Desert(m) 10K rays, 179 cells per ray, "
+        f"`lean 1 lane`: kernels/lean.py with one ray in flight, no prefetch; `{LEAN_DEFAULT}` (the default): "
+        f"{LEAN_LANES} rays in flight per thread, each next cell record prefetched (bit-identical final states). "
+        f"Paper reference (one 3.2 GHz core, 2016): Desert(m) 10K rays, 179 cells per ray, "
         f"219 ms, ~8M crossings per second, {PAPER_NS:.0f} ns per crossing."
     )
     sec.text.append(
@@ -181,13 +188,13 @@ def run(quick: bool, scene_cache: dict[str, Any] | None = None) -> Section:
         f"{costs['flop_s'] * 1e9:.2f} ns, sqrt {costs['sqrt_s'] * 1e9:.2f} ns, division {costs['div_s'] * 1e9:.2f} ns, "
         f"log1p {costs['log1p_s'] * 1e9:.1f} ns (independent chains). Per crossing: memory bound = the cache lines "
         "of one cell's records at that bandwidth (every cell from memory), arithmetic bound = 215 flops, 9 sqrt, "
-        "17 divisions and 1 log1p at those costs; `x_memory_bound` / `x_arithmetic_bound` = measured ns per "
-        "crossing over each."
+        "10 divisions at those costs (the lean kernel's memory bound counts its packed record's lines); "
+        "`x_memory_bound` / `x_arithmetic_bound` = measured ns per crossing over each."
     )
     one = [r for r in table.rows if r["threads"] == 1 and r["kernel"]]
     for scene in dict.fromkeys(r["scene"] for r in one):
         rows = {r["kernel"]: r for r in one if r["scene"] == scene}
-        gen, lean = rows.get("generic"), rows.get(f"lean p{LEAN_PREFETCH}")
+        gen, lean = rows.get("generic"), rows.get(LEAN_DEFAULT)
         if gen is None or lean is None:
             continue
         b = bounds[scene]
@@ -195,7 +202,8 @@ def run(quick: bool, scene_cache: dict[str, Any] | None = None) -> Section:
             f"**{scene}, one core: generic {gen['ns_per_crossing_per_core']:.0f} ns per crossing "
             f"({gen['crossings_per_s_per_core'] / 1e6:.1f}M/s), lean {lean['ns_per_crossing_per_core']:.0f} ns "
             f"({lean['crossings_per_s_per_core'] / 1e6:.1f}M/s, {lean['speedup_vs_generic']:.2f}x); bounds: memory "
-            f"{b['memory_ns']:.0f} ns ({b['lines_per_cell']:.1f} lines per cell), arithmetic "
+            f"{b['memory_ns']:.0f} ns ({b['lines_per_cell']:.1f} lines per cell; packed "
+            f"{b['packed_memory_ns']:.0f} ns, {b['packed_lines']:.0f} lines), arithmetic "
             f"{b['arithmetic_ns']:.0f} ns; "
             f"lean = {lean['x_memory_bound']:.1f}x the memory bound, {lean['x_arithmetic_bound']:.1f}x the arithmetic "
             f"bound; paper {PAPER_NS:.0f} ns / lean = {PAPER_NS / lean['ns_per_crossing_per_core']:.2f}x; "

@@ -4,21 +4,24 @@ The generic kernel (traverse.trace_one) serves every curve kind, field, beam, pa
 with one loop and runtime switches; a job that needs none of them still pays for the switches, the
 runtime curve dispatch, the per-cell array views (two atomic reference-count updates each) and the
 compile time of all of it. This module is the same walk (Algorithm 1, physics.md section 5) written
-for that one case:
+for that one case, and written for the memory system:
 
-- the same arithmetic in the same order on the same mesh arrays (parabolic.plane_coefficients written
-  out, roots.face_exit_parameter, parabolic.travel_time / sigma_at_time / state_at / arc_length, and the
+- the same arithmetic in the same order on the same numbers (parabolic.plane_coefficients written out,
+  roots.face_exit_parameter, parabolic.travel_time / sigma_at_time / state_at / arc_length, and the
   generic kernel's own rare-event helpers for nudges, slides and walks), so the final ray states are
   bit-identical to the generic kernel's (tests/engine/test_lean_traversal.py);
 - faces that cannot be exits are skipped before their root is taken: with A <= 0 and B <= 0 the face
   polynomial A u^2 + B u + C has no upward crossing for u > 0 and face_exit_parameter returns +inf for
   every C (also the on-face and tangent cases), so skipping them changes no result;
-- the cell walk reads the mesh arrays by index, never through per-cell views;
-- memory prefetch (``prefetch`` > 0): once a cell's exit face is known, the next cell's records (planes,
-  neighbours, neighbour faces, media, gradient, reference point, size) are prefetched while the segment's
-  time and arc length are computed; ``prefetch`` 2 also prefetches the planes and gradients of all of a
-  cell's neighbours when the ray enters it. Prefetches only move data into the cache (they never fault
-  and change no value).
+- each cell is one packed, 64-byte aligned record (mesh/packed.py: planes, gradient, reference point and
+  value, size, neighbours and neighbour faces; 4 cache lines for a tetrahedron) instead of reads from seven
+  arrays (8-10 lines); the rare events read the mesh's own arrays;
+- interleaved lanes: a ray learns its next cell only at the end of each step, so a single ray waits for
+  every new cell's record from memory (a terrain mesh of 760k cells is 195 MB of records, and most cells
+  are new to the ray that enters them). The kernel keeps ``lanes`` rays in flight and steps them in turn;
+  once a ray's exit face is known its next record is prefetched (``prefetch`` 1), and the other lanes'
+  steps run while it arrives. Prefetches only move data into the cache (they never fault and change no
+  value), and each lane's arithmetic is that of one ray alone, so any number of lanes gives the same bits.
 
 Rays run in contiguous blocks (neighbouring launch directions share a thread and their cells' cache
 lines), one serial kernel call per block on Python threads (the kernel releases the GIL; tracer.trace_lean),
@@ -70,7 +73,7 @@ from bentray.engine.kernels import parabolic
 from bentray.engine.kernels.roots import NO_ROOT, face_exit_parameter
 from bentray.engine.kernels.traverse import _nudge, _onto_face, _tangent_face
 
-__all__ = ["trace_block_lean", "trace_one_lean"]
+__all__ = ["trace_block_lanes"]
 
 # The parabolic helpers compiled as plain (called, not IR-inlined) functions: the very same Python code as
 # the generic kernel's, so the same arithmetic, but numba's IR inlining (inline="always") of their four
@@ -120,229 +123,310 @@ def _prefetch_row(arr, row, row_bytes):
     _prefetch(arr, row, row_bytes - 1)
 
 
-@nb.njit(**NJIT_FLAGS)
-def _prefetch_cell(mesh, cell, k_faces):
-    """The records the walk reads on entering ``cell``."""
-    _prefetch_row(mesh.planes, cell, 32 * k_faces)
-    _prefetch_row(mesh.neighbours, cell, 8 * k_faces)
-    _prefetch_row(mesh.gradient, cell, 24)
-    _prefetch_row(mesh.ref_point, cell, 24)
-    _prefetch(mesh.media_ref, cell, 0)
-    _prefetch(mesh.size, cell, 0)
+# Lane state columns (trace_block_lanes): float64 per lane
+_F_X = 0  # position (3)
+_F_D = 3  # unit tangent (3)
+_F_T = 6  # travel time
+_F_S = 7  # arc length
+_F_SIZE = 8
+# int64 per lane
+_I_RAY = 0  # ray index, -1: lane idle
+_I_CELL = 1
+_I_ENTRY = 2
+_I_REFL = 3
+_I_CROSS = 4
+_I_NUDGES = 5
+_I_NUDGE_RUN = 6
+_I_ZERO_RUN = 7
+_I_SLIDE = 8
+_I_PREV = 9
+_I_PP = 10
+_I_STEPS = 11
+_I_STATUS = 12
+_I_SIZE = 13
 
 
 @nb.njit(**NJIT_FLAGS)
-def trace_one_lean(mesh, c_ref, limits, x_start, d_start, cell, state, counts):
-    """Trace one ray (parabolic, no wind/field/paths) from x_start along d_start in ``cell`` (-1: lost).
+def _lane_start(ray, x_start, d_start, cell, fs, ist):
+    """Load ray ``ray`` into one lane's state rows fs (_F_SIZE,), ist (_I_SIZE,) as trace_one_lean starts it."""
+    norm = math.sqrt(d_start[0] * d_start[0] + d_start[1] * d_start[1] + d_start[2] * d_start[2])
+    for i in range(3):
+        fs[_F_X + i] = x_start[i]
+        fs[_F_D + i] = d_start[i] / norm
+    fs[_F_T] = 0.0
+    fs[_F_S] = 0.0
+    ist[:] = 0
+    ist[_I_RAY] = ray
+    ist[_I_CELL] = cell
+    ist[_I_ENTRY] = -1
+    ist[_I_SLIDE] = -1
+    ist[_I_PREV] = -1
+    ist[_I_STATUS] = STATUS_RUNNING if cell >= 0 else STATUS_LOST
 
-    mesh : CellMesh; c_ref : reference speed (m/s); limits : (max_time s, max_reflections, max_steps,
-    prefetch 0 | 1 | 2 (module docstring)). x_start, d_start : (3,) m / any length. Writes state
-    (STATE_SIZE,) and counts (COUNT_SIZE,).
+
+@nb.njit(**NJIT_FLAGS)
+def _lane_finish(fs, ist, state, counts):
+    """Write one lane's final state into its ray's output rows."""
+    for k in range(3):
+        state[STATE_X + k] = fs[_F_X + k]
+        state[STATE_D + k] = fs[_F_D + k]
+    state[STATE_TIME] = fs[_F_T]
+    state[STATE_LENGTH] = fs[_F_S]
+    counts[COUNT_STATUS] = ist[_I_STATUS]
+    counts[COUNT_REFLECTIONS] = ist[_I_REFL]
+    counts[COUNT_CROSSINGS] = ist[_I_CROSS]
+    counts[COUNT_NUDGES] = ist[_I_NUDGES]
+    counts[COUNT_STEPS] = ist[_I_STEPS]
+    counts[COUNT_SAMPLES] = 0
+
+
+@nb.njit(**NJIT_FLAGS)
+def trace_block_lanes(packed, mesh, c_ref, limits, origins, directions, cells, out_state, out_counts, lo, hi):
+    """Trace rays lo..hi-1 in ``lanes`` interleaved lanes on packed cell records (mesh/packed.py).
+
+    The walk of :func:`trace_one_lean`, one segment step of one ray at a time, taking the lanes in turn:
+    when a ray's exit face is known its next cell's record is prefetched (``prefetch`` > 0) and the other
+    lanes' steps run while it arrives, so the walk waits on memory far less than one ray alone, which knows
+    its next cell only at the end of each step. Every lane does trace_one_lean's arithmetic on the same
+    numbers (the records are exact copies), so the final states are bit-identical to it and to the generic
+    kernel for any number of lanes. The rare events (nudges, slides, walks) read the mesh's own arrays.
+
+    packed : PackedCells; mesh : CellMesh; c_ref : m/s; limits : (max_time s, max_reflections, max_steps,
+    prefetch 0 | 1, lanes >= 1). origins, directions (n, 3), cells (n,), out_state (n, STATE_SIZE),
+    out_counts (n, COUNT_SIZE) as in trace_block_lean.
     """
-    max_time, max_reflections, max_steps, prefetch = limits
+    max_time, max_reflections, max_steps, prefetch, lanes = limits
+    rec = packed.rec
+    k_faces = packed.k_faces
+    o_g = 4 * k_faces
+    o_r = o_g + 3
+    o_m = o_g + 6
+    o_s = o_g + 7
+    o_nb = o_g + 8
+    o_nf = o_nb + k_faces
+    rec_bytes = 8 * rec.shape[1]
     planes = mesh.planes
     neighbours = mesh.neighbours
-    neighbour_face = mesh.neighbour_face
-    media_ref = mesh.media_ref
-    ref_point = mesh.ref_point
-    gradient = mesh.gradient
-    size = mesh.size
-    k_faces = planes.shape[1]
-    x = x_start.copy()
-    d = d_start.copy()
-    norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-    for i in range(3):
-        d[i] /= norm
+    n_lanes = max(1, min(lanes, hi - lo))
+    fst = np.empty((n_lanes, _F_SIZE))
+    ist = np.full((n_lanes, _I_SIZE), -1, dtype=np.int64)
+    x = np.empty(3)
+    d = np.empty(3)
     xn = np.empty(3)
     dn = np.empty(3)
-    t = 0.0
-    s = 0.0
-    entry = -1
-    reflections = 0
-    crossings = 0
-    nudges = 0
-    nudge_run = 0
-    zero_run = 0
-    slide_face = -1
-    prev_cell = -1
-    pp_run = 0
-    steps = 0
-    status = STATUS_RUNNING
-    if cell < 0:
-        status = STATUS_LOST
-    while status == STATUS_RUNNING:
-        if steps >= max_steps:
-            status = STATUS_STEP_LIMIT
-            break
-        steps += 1
-        m0 = (
-            media_ref[cell]
-            + gradient[cell, 0] * (x[0] - ref_point[cell, 0])
-            + gradient[cell, 1] * (x[1] - ref_point[cell, 1])
-            + gradient[cell, 2] * (x[2] - ref_point[cell, 2])
-        )
-        g0 = gradient[cell, 0]
-        g1 = gradient[cell, 1]
-        g2 = gradient[cell, 2]
-        exclude = entry
-        if slide_face >= 0:
-            # slide along the face: the mean gradient of the two sides without its normal part
-            nb_cell = neighbours[cell, slide_face]
-            if nb_cell >= 0:
-                g0 = 0.5 * (g0 + gradient[nb_cell, 0])
-                g1 = 0.5 * (g1 + gradient[nb_cell, 1])
-                g2 = 0.5 * (g2 + gradient[nb_cell, 2])
-            gm = g0 * planes[cell, slide_face, 0] + g1 * planes[cell, slide_face, 1] + g2 * planes[cell, slide_face, 2]
-            g0 = g0 - gm * planes[cell, slide_face, 0]
-            g1 = g1 - gm * planes[cell, slide_face, 1]
-            g2 = g2 - gm * planes[cell, slide_face, 2]
-            exclude = slide_face
-            slide_face = -1
-        if not (m0 > 0.0) or not math.isfinite(m0):
-            status = STATUS_LOST
-            break
-        n0 = math.sqrt(m0)
-        p0 = (n0 * d[0], n0 * d[1], n0 * d[2])
-        g = (g0, g1, g2)
-        gp0 = g0 * p0[0] + g1 * p0[1] + g2 * p0[2]
-        gg = g0 * g0 + g1 * g1 + g2 * g2
-        cell_size = size[cell]
-        on_face_tol = ON_FACE_REL * cell_size
-        param = NO_ROOT
-        face = -1
-        for f in range(k_faces):
-            if neighbours[cell, f] == FACE_UNUSED:
-                continue
-            mx = planes[cell, f, 0]
-            my = planes[cell, f, 1]
-            mz = planes[cell, f, 2]
-            a = 0.25 * (mx * g0 + my * g1 + mz * g2)
-            b = mx * p0[0] + my * p0[1] + mz * p0[2]
-            if a <= 0.0 and b <= 0.0:
-                continue  # no upward crossing for u > 0 whatever C is: face_exit_parameter would give +inf
-            c = mx * x[0] + my * x[1] + mz * x[2] - planes[cell, f, 3]
-            r = _face_exit_parameter(a, b, c, f == exclude, on_face_tol)
-            if r < param:
-                param = r
-                face = f
-        if prefetch > 0 and face >= 0:
-            nxt = neighbours[cell, face]
-            if nxt >= 0:
-                _prefetch_cell(mesh, nxt, k_faces)
-                _prefetch_row(neighbour_face, cell, 8 * k_faces)
-        if param == 0.0:
-            zero_run += 1
-        if (face < 0 and not math.isfinite(param)) or zero_run > MAX_ZERO_STEPS:
-            # rounding at an edge or vertex left no consistent exit: nudge and re-locate
-            nudges += 1
-            nudge_run += 1
-            zero_run = 0
-            if nudge_run > MAX_NUDGES_IN_A_ROW:
-                status = STATUS_LOST
+    next_ray = lo
+    busy = 0
+    for lane in range(n_lanes):  # fill the lanes (rays starting outside the mesh finish at once)
+        while next_ray < hi:
+            ray = next_ray
+            next_ray += 1
+            _lane_start(ray, origins[ray], directions[ray], cells[ray], fst[lane], ist[lane])
+            if ist[lane, _I_STATUS] == STATUS_RUNNING:
+                busy += 1
                 break
-            tf = _tangent_face(planes[cell], neighbours[cell], x, d, size[cell])
-            if tf >= 0:
-                _onto_face(planes[cell, tf], x, d, True)
-                slide_face = tf
+            _lane_finish(fst[lane], ist[lane], out_state[ray], out_counts[ray])
+            ist[lane, _I_RAY] = -1
+    while busy > 0:
+        for lane in range(n_lanes):
+            ray = ist[lane, _I_RAY]
+            if ray < 0:
                 continue
-            eta = NUDGE_REL * cell_size
-            t += eta * (math.sqrt(m0) / c_ref)
-            s += eta
-            cell, status = _nudge(planes, neighbours, cell, x, d, eta)
-            entry = -1
-            continue
-        dt = _travel_time(m0, gp0, gg, param, c_ref)
-        if not (dt >= 0.0):
-            status = STATUS_LOST
-            break
-        if t + dt >= max_time:
-            param_end = _sigma_at_time(m0, gp0, gg, max_time - t, param, c_ref)
-            _state_at(x, p0, g, param_end, xn, dn)
-            ds = _arc_length(p0, g, param_end)
+            # ---- load the lane
             for i in range(3):
-                x[i] = xn[i]
-                d[i] = dn[i]
-            t = max_time
-            s += ds
-            status = STATUS_TIME_LIMIT
-            break
-        _state_at(x, p0, g, param, xn, dn)
-        ds = _arc_length(p0, g, param)
-        if ds > TINY_STEP_REL * cell_size:
-            zero_run = 0
-        elif param != 0.0:
-            zero_run += 1
-        for i in range(3):
-            x[i] = xn[i]
-            d[i] = dn[i]
-        t += dt
-        s += ds
-        if not (math.isfinite(x[0]) and math.isfinite(x[1]) and math.isfinite(x[2])):
-            status = STATUS_LOST
-            break
-        if param > 0.0:
-            nudge_run = 0
-        nxt = neighbours[cell, face]
-        if nxt >= 0:
-            dm = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
-            if nxt == prev_cell and abs(dm) <= SLIDE_COS:
-                pp_run += 1
-            else:
-                pp_run = 0
-            if pp_run >= PINGPONG_SLIDE:
-                # zig-zagging across this face: slide along it in the current cell
-                _onto_face(planes[cell, face], x, d, False)
-                slide_face = face
-                pp_run = 0
-                nudges += 1
-                continue
-            prev_cell = cell
-            entry = neighbour_face[cell, face]
-            cell = nxt
-            crossings += 1
-            if prefetch > 1:
+                x[i] = fst[lane, _F_X + i]
+                d[i] = fst[lane, _F_D + i]
+            t = fst[lane, _F_T]
+            s = fst[lane, _F_S]
+            cell = ist[lane, _I_CELL]
+            entry = ist[lane, _I_ENTRY]
+            reflections = ist[lane, _I_REFL]
+            crossings = ist[lane, _I_CROSS]
+            nudges = ist[lane, _I_NUDGES]
+            nudge_run = ist[lane, _I_NUDGE_RUN]
+            zero_run = ist[lane, _I_ZERO_RUN]
+            slide_face = ist[lane, _I_SLIDE]
+            prev_cell = ist[lane, _I_PREV]
+            pp_run = ist[lane, _I_PP]
+            steps = ist[lane, _I_STEPS]
+            status = STATUS_RUNNING
+            # ---- one step of trace_one_lean's loop ('break' there: status set here; 'continue': step ends)
+            while True:
+                if steps >= max_steps:
+                    status = STATUS_STEP_LIMIT
+                    break
+                steps += 1
+                m0 = (
+                    rec[cell, o_m]
+                    + rec[cell, o_g] * (x[0] - rec[cell, o_r])
+                    + rec[cell, o_g + 1] * (x[1] - rec[cell, o_r + 1])
+                    + rec[cell, o_g + 2] * (x[2] - rec[cell, o_r + 2])
+                )
+                g0 = rec[cell, o_g]
+                g1 = rec[cell, o_g + 1]
+                g2 = rec[cell, o_g + 2]
+                exclude = entry
+                if slide_face >= 0:
+                    nb_cell = int(rec[cell, o_nb + slide_face])
+                    if nb_cell >= 0:
+                        g0 = 0.5 * (g0 + rec[nb_cell, o_g])
+                        g1 = 0.5 * (g1 + rec[nb_cell, o_g + 1])
+                        g2 = 0.5 * (g2 + rec[nb_cell, o_g + 2])
+                    pf = 4 * slide_face
+                    gm = g0 * rec[cell, pf] + g1 * rec[cell, pf + 1] + g2 * rec[cell, pf + 2]
+                    g0 = g0 - gm * rec[cell, pf]
+                    g1 = g1 - gm * rec[cell, pf + 1]
+                    g2 = g2 - gm * rec[cell, pf + 2]
+                    exclude = slide_face
+                    slide_face = -1
+                if not (m0 > 0.0) or not math.isfinite(m0):
+                    status = STATUS_LOST
+                    break
+                n0 = math.sqrt(m0)
+                p0 = (n0 * d[0], n0 * d[1], n0 * d[2])
+                g = (g0, g1, g2)
+                gp0 = g0 * p0[0] + g1 * p0[1] + g2 * p0[2]
+                gg = g0 * g0 + g1 * g1 + g2 * g2
+                cell_size = rec[cell, o_s]
+                on_face_tol = ON_FACE_REL * cell_size
+                param = NO_ROOT
+                face = -1
                 for f in range(k_faces):
-                    nb_next = neighbours[cell, f]
-                    if nb_next >= 0 and f != entry:
-                        _prefetch_row(planes, nb_next, 32 * k_faces)
-                        _prefetch_row(gradient, nb_next, 24)
-        elif nxt == BOUNDARY_REFLECT:
-            dot = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
-            if param == 0.0 and abs(dot) <= GRAZE_COS:
-                # on the boundary, moving along it and curving into it: creep along the surface (slide)
-                slide_face = face
-                entry = -1
-                continue
-            if reflections >= max_reflections:
-                status = STATUS_REFLECTION_LIMIT
+                    if rec[cell, o_nb + f] == FACE_UNUSED:
+                        continue
+                    mx = rec[cell, 4 * f]
+                    my = rec[cell, 4 * f + 1]
+                    mz = rec[cell, 4 * f + 2]
+                    a = 0.25 * (mx * g0 + my * g1 + mz * g2)
+                    b = mx * p0[0] + my * p0[1] + mz * p0[2]
+                    if a <= 0.0 and b <= 0.0:
+                        continue
+                    c = mx * x[0] + my * x[1] + mz * x[2] - rec[cell, 4 * f + 3]
+                    r = _face_exit_parameter(a, b, c, f == exclude, on_face_tol)
+                    if r < param:
+                        param = r
+                        face = f
+                nxt = -1
+                if face >= 0:
+                    nxt = int(rec[cell, o_nb + face])
+                    if prefetch > 0 and nxt >= 0:
+                        _prefetch_row(rec, nxt, rec_bytes)
+                if param == 0.0:
+                    zero_run += 1
+                if (face < 0 and not math.isfinite(param)) or zero_run > MAX_ZERO_STEPS:
+                    nudges += 1
+                    nudge_run += 1
+                    zero_run = 0
+                    if nudge_run > MAX_NUDGES_IN_A_ROW:
+                        status = STATUS_LOST
+                        break
+                    tf = _tangent_face(planes[cell], neighbours[cell], x, d, cell_size)
+                    if tf >= 0:
+                        _onto_face(planes[cell, tf], x, d, True)
+                        slide_face = tf
+                        break
+                    eta = NUDGE_REL * cell_size
+                    t += eta * (math.sqrt(m0) / c_ref)
+                    s += eta
+                    cell, status = _nudge(planes, neighbours, cell, x, d, eta)
+                    entry = -1
+                    break
+                dt = _travel_time(m0, gp0, gg, param, c_ref)
+                if not (dt >= 0.0):
+                    status = STATUS_LOST
+                    break
+                if t + dt >= max_time:
+                    param_end = _sigma_at_time(m0, gp0, gg, max_time - t, param, c_ref)
+                    _state_at(x, p0, g, param_end, xn, dn)
+                    ds = _arc_length(p0, g, param_end)
+                    for i in range(3):
+                        x[i] = xn[i]
+                        d[i] = dn[i]
+                    t = max_time
+                    s += ds
+                    status = STATUS_TIME_LIMIT
+                    break
+                _state_at(x, p0, g, param, xn, dn)
+                ds = _arc_length(p0, g, param)
+                if ds > TINY_STEP_REL * cell_size:
+                    zero_run = 0
+                elif param != 0.0:
+                    zero_run += 1
+                for i in range(3):
+                    x[i] = xn[i]
+                    d[i] = dn[i]
+                t += dt
+                s += ds
+                if not (math.isfinite(x[0]) and math.isfinite(x[1]) and math.isfinite(x[2])):
+                    status = STATUS_LOST
+                    break
+                if param > 0.0:
+                    nudge_run = 0
+                if nxt >= 0:
+                    pf = 4 * face
+                    dm = d[0] * rec[cell, pf] + d[1] * rec[cell, pf + 1] + d[2] * rec[cell, pf + 2]
+                    if nxt == prev_cell and abs(dm) <= SLIDE_COS:
+                        pp_run += 1
+                    else:
+                        pp_run = 0
+                    if pp_run >= PINGPONG_SLIDE:
+                        _onto_face(planes[cell, face], x, d, False)
+                        slide_face = face
+                        pp_run = 0
+                        nudges += 1
+                        break
+                    prev_cell = cell
+                    entry = int(rec[cell, o_nf + face])
+                    cell = nxt
+                    crossings += 1
+                elif nxt == BOUNDARY_REFLECT:
+                    pf = 4 * face
+                    dot = d[0] * rec[cell, pf] + d[1] * rec[cell, pf + 1] + d[2] * rec[cell, pf + 2]
+                    if param == 0.0 and abs(dot) <= GRAZE_COS:
+                        slide_face = face
+                        entry = -1
+                        break
+                    if reflections >= max_reflections:
+                        status = STATUS_REFLECTION_LIMIT
+                        break
+                    for i in range(3):
+                        d[i] -= 2.0 * dot * rec[cell, pf + i]
+                    norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+                    for i in range(3):
+                        d[i] /= norm
+                    reflections += 1
+                    entry = face
+                else:
+                    status = STATUS_EXITED
                 break
+            # ---- store the lane; a finished ray is written out and the lane takes the next one
             for i in range(3):
-                d[i] -= 2.0 * dot * planes[cell, face, i]
-            norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-            for i in range(3):
-                d[i] /= norm
-            reflections += 1
-            entry = face
-        else:
-            status = STATUS_EXITED
-            break
-    for k in range(3):
-        state[STATE_X + k] = x[k]
-        state[STATE_D + k] = d[k]
-    state[STATE_TIME] = t
-    state[STATE_LENGTH] = s
-    counts[COUNT_STATUS] = status
-    counts[COUNT_REFLECTIONS] = reflections
-    counts[COUNT_CROSSINGS] = crossings
-    counts[COUNT_NUDGES] = nudges
-    counts[COUNT_STEPS] = steps
-    counts[COUNT_SAMPLES] = 0  # no path samples
-
-
-@nb.njit(**NJIT_FLAGS)
-def trace_block_lean(mesh, c_ref, limits, origins, directions, cells, out_state, out_counts, lo, hi):
-    """Trace rays lo..hi-1 with :func:`trace_one_lean` (one thread; the wrapper runs contiguous blocks on
-    several threads, the GIL released). origins, directions : (n, 3) float64; cells : (n,) int64;
-    out_state (n, STATE_SIZE) float64 and out_counts (n, COUNT_SIZE) int64 are written, row i for ray i."""
-    for i in range(lo, hi):
-        trace_one_lean(mesh, c_ref, limits, origins[i], directions[i], cells[i], out_state[i], out_counts[i])
+                fst[lane, _F_X + i] = x[i]
+                fst[lane, _F_D + i] = d[i]
+            fst[lane, _F_T] = t
+            fst[lane, _F_S] = s
+            ist[lane, _I_CELL] = cell
+            ist[lane, _I_ENTRY] = entry
+            ist[lane, _I_REFL] = reflections
+            ist[lane, _I_CROSS] = crossings
+            ist[lane, _I_NUDGES] = nudges
+            ist[lane, _I_NUDGE_RUN] = nudge_run
+            ist[lane, _I_ZERO_RUN] = zero_run
+            ist[lane, _I_SLIDE] = slide_face
+            ist[lane, _I_PREV] = prev_cell
+            ist[lane, _I_PP] = pp_run
+            ist[lane, _I_STEPS] = steps
+            ist[lane, _I_STATUS] = status
+            if status == STATUS_RUNNING:
+                continue
+            _lane_finish(fst[lane], ist[lane], out_state[ray], out_counts[ray])
+            ist[lane, _I_RAY] = -1
+            busy -= 1
+            while next_ray < hi:
+                ray = next_ray
+                next_ray += 1
+                _lane_start(ray, origins[ray], directions[ray], cells[ray], fst[lane], ist[lane])
+                if ist[lane, _I_STATUS] == STATUS_RUNNING:
+                    busy += 1
+                    break
+                _lane_finish(fst[lane], ist[lane], out_state[ray], out_counts[ray])
+                ist[lane, _I_RAY] = -1

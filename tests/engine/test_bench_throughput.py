@@ -38,6 +38,8 @@ def test_bounds_scale_with_the_measured_costs() -> None:
     # ref_point and gradient 24 B (1-2 lines each), media_ref and size 8 B (1 line each)
     assert 10.0 <= b["lines_per_cell"] <= 16.0
     assert math.isclose(b["memory_ns"], b["lines_per_cell"] * 64 / 10.0)
+    # the lean kernel's packed record: 6 x 6 + 8 = 44 doubles, padded to 48 = 6 whole lines
+    assert b["packed_lines"] == 6.0 and math.isclose(b["packed_memory_ns"], 6 * 64 / 10.0)
     ops = CROSSING_OPS
     expected = ops["flops"] * 1.0 + ops["sqrt"] * 2.0 + ops["div"] * 3.0 + ops["log1p"] * 4.0
     assert math.isclose(b["arithmetic_ns"], expected)

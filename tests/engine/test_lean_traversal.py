@@ -1,11 +1,11 @@
 """The lean traversal (engine/kernels/lean.py) against the generic kernel: bit-identical final ray states.
 
 The lean kernel is the generic walk without wind, field, paths and paraxial state, with faces that cannot
-be exits skipped and memory prefetches: its arithmetic is unchanged, so every final state (position,
-direction, time, length, status, reflections, crossings, nudges, segments) must be *equal*, not close, on
-slabs, Delaunay tetrahedra (rays from a mesh vertex: the nudge and slide paths) and the desert terrain,
-for every prefetch level, 1,000+ rays each. ``trace(kernel="auto")`` must pick the lean kernel exactly
-for the plain parabolic case.
+be exits skipped, packed cell records and interleaved lanes with prefetches: its arithmetic is unchanged, so
+every final state (position, direction, time, length, status, reflections, crossings, nudges, segments) must
+be *equal*, not close, on slabs, Delaunay tetrahedra (rays from a mesh vertex: the nudge and slide paths) and
+the desert terrain, for one lane and several, with and without prefetch, 1,000+ rays each.
+``trace(kernel="auto")`` must pick the lean kernel exactly for the plain parabolic case.
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ def _assert_identical(generic: TraceResult, lean: TraceResult) -> None:
 def _compare(mesh: Any, o: np.ndarray, d: np.ndarray, cells: np.ndarray, **kw: Any) -> TraceResult:
     kw = {"max_time_s": 10.0, "max_reflections": 3, **kw}
     generic = trace(mesh, "parabolic", 340.0, o, d, cells, kernel="generic", **kw)
-    for prefetch in (0, 1, 2):
-        _assert_identical(generic, trace_lean(mesh, 340.0, o, d, cells, prefetch=prefetch, **kw))
+    for prefetch, lanes in ((0, 1), (1, 1), (0, 3), (1, 8)):
+        _assert_identical(generic, trace_lean(mesh, 340.0, o, d, cells, prefetch=prefetch, lanes=lanes, **kw))
     _assert_identical(generic, trace(mesh, "parabolic", 340.0, o, d, cells, **kw))  # auto -> lean
     return generic
 
@@ -124,6 +124,32 @@ def test_desert_terrain_bit_identical() -> None:
     assert res.crossings.sum() > 50_000
 
 
+def test_lanes_take_rays_that_start_outside_the_mesh_in_their_stride(slabs) -> None:
+    """Rays with no start cell finish as lost at once, wherever they fall among the lanes' refills."""
+    sc = slabs
+    cells = sc.start_cells[:300].copy()
+    cells[[0, 1, 2, 7, 8, 100, 101, 102, 103, 104, 105, 106, 107, 108, 299]] = -1
+    res = _compare(sc.mesh, sc.origins[:300], sc.directions[:300], cells)
+    assert res.status_counts()["lost"] == 15 and res.steps[cells < 0].max() == 0
+
+
+def test_packed_records_copy_the_mesh_exactly_on_cache_lines(slabs) -> None:
+    from bentray.engine.mesh.packed import pack_cells, packed_cells, record_width
+
+    m = sc_mesh = slabs.mesh
+    pc = pack_cells(m)
+    k = m.planes.shape[1]
+    assert pc.k_faces == k and pc.rec.shape == (m.n_cells, record_width(k)) and record_width(4) == 32
+    assert pc.rec.ctypes.data % 64 == 0 and pc.rec.strides[0] % 64 == 0
+    assert np.array_equal(pc.rec[:, : 4 * k].reshape(m.planes.shape), m.planes)
+    assert np.array_equal(pc.rec[:, 4 * k : 4 * k + 3], m.gradient)
+    assert np.array_equal(pc.rec[:, 4 * k + 3 : 4 * k + 6], m.ref_point)
+    assert np.array_equal(pc.rec[:, 4 * k + 6], m.media_ref) and np.array_equal(pc.rec[:, 4 * k + 7], m.size)
+    assert np.array_equal(pc.rec[:, 4 * k + 8 : 5 * k + 8].astype(np.int64), m.neighbours)
+    assert np.array_equal(pc.rec[:, 5 * k + 8 : 6 * k + 8].astype(np.int64), m.neighbour_face)
+    assert packed_cells(sc_mesh) is packed_cells(sc_mesh)  # built once per mesh
+
+
 def test_auto_picks_the_lean_kernel_only_for_the_plain_parabolic_trace() -> None:
     assert lean_applies("parabolic", 0, None, 0, False, False)
     assert not lean_applies("circular", 0, None, 0, False, False)
@@ -142,6 +168,10 @@ def test_lean_blocks_cover_every_ray_once_in_order() -> None:
 
 def test_kernel_lean_refuses_what_it_cannot_trace(slabs) -> None:
     sc = slabs
+    for bad in ({"prefetch": 2}, {"lanes": 0}):
+        with pytest.raises(ValueError, match="prefetch must be|lanes must be"):
+            trace_lean(sc.mesh, 340.0, sc.origins[:2], sc.directions[:2], sc.start_cells[:2], max_time_s=1.0,
+                       max_reflections=1, **bad)  # fmt: skip
     with pytest.raises(ValueError, match="kernel='lean' traces only"):
         trace(sc.mesh, "parabolic", 340.0, sc.origins[:2], sc.directions[:2], sc.start_cells[:2], max_time_s=1.0,
               max_reflections=1, path_samples=5, kernel="lean")  # fmt: skip
