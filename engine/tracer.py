@@ -37,11 +37,13 @@ from bentray.engine.result import RayPaths, TraceResult
 from bentray.engine.wind import WIND_NONE, check_wind
 
 KERNELS = ("auto", "generic", "lean")
-# Lean kernel (kernels/lean.py): rays in flight per thread and whether each ray's next cell record is
-# prefetched once its exit face is known. `bentray bench --only throughput` times 1 lane without prefetch
-# against LEAN_LANES lanes with it; the final states are the same bits for every setting.
+# Lean kernel (kernels/lean.py): rays in flight per thread, with each ray's next cell record prefetched
+# once its exit face is known, for meshes whose packed records exceed LEAN_CACHED_BYTES (they come from
+# memory); smaller meshes stay in cache, where lanes only add bookkeeping (A-LD slabs, 0.9 MB: 62 ns per
+# crossing with one lane, 65-72 with several; the desert, 195 MB: 175 ns with one, 103-122 with 4-8;
+# docs/physics.md section 9). `bentray bench --only throughput` times both; every setting gives the same bits.
 LEAN_LANES = 8
-LEAN_PREFETCH = 1
+LEAN_CACHED_BYTES = 8 << 20
 
 
 def path_capacity(path_samples: int, max_reflections: int) -> int:
@@ -206,15 +208,20 @@ def trace_lean(
     max_time_s: float,
     max_reflections: int,
     max_steps: int = 10_000_000,
-    prefetch: int = LEAN_PREFETCH,
-    lanes: int = LEAN_LANES,
+    prefetch: int | None = None,
+    lanes: int | None = None,
 ) -> TraceResult:
     """The plain parabolic trace on the lean kernel (kernels/lean.py): the final states of :func:`trace`
-    bit for bit, without paths, field, wind or paraxial state. Arguments as in :func:`trace`; prefetch :
-    0 or 1, lanes : rays in flight per thread, >= 1 (LEAN_PREFETCH, LEAN_LANES); the mesh's packed records
+    bit for bit, without paths, field, wind or paraxial state. Arguments as in :func:`trace`; lanes : rays
+    in flight per thread, >= 1, and prefetch : 0 or 1 (None: LEAN_LANES lanes with prefetch for meshes whose
+    packed records exceed LEAN_CACHED_BYTES, else one lane without). The mesh's packed records
     (mesh/packed.py) are built on the first trace of a mesh and kept while it lives. Returns a TraceResult
     with launch angles NaN (the caller fills them in)."""
     origins, directions, start_cells = ray_inputs("parabolic", origins, directions, start_cells, max_time_s)
+    packed = packed_cells(mesh)
+    from_memory = packed.rec.nbytes > LEAN_CACHED_BYTES
+    lanes = (LEAN_LANES if from_memory else 1) if lanes is None else lanes
+    prefetch = int(lanes > 1) if prefetch is None else prefetch
     if prefetch not in (0, 1):
         raise ValueError(f"prefetch must be 0 or 1, got {prefetch!r}")
     if int(lanes) < 1:
@@ -232,7 +239,6 @@ def trace_lean(
         np.full((0, PAR_OUT_SIZE), np.nan),
     )
     limits = (float(max_time_s), int(max_reflections), int(max_steps), int(prefetch), int(lanes))
-    packed = packed_cells(mesh)
     args = (packed, mesh, float(c_ref), limits, origins, directions, start_cells, rays.out_state, rays.out_counts)
     blocks = lean_blocks(n, int(numba.get_num_threads()))
     if len(blocks) <= 1:
