@@ -289,6 +289,74 @@ def _speed(code, params, x):
 
 
 @nb.njit(**NJIT_FLAGS)
+def _speed_up_second(params, xx, dz):
+    """Second derivatives (d2/dX2, d2/dX dp, d2/dp2) of the ridge speed-up du = k (p^2 - X^2) / (X^2 + p^2)^2,
+    p = dz + half_width: du = k Re(zeta^-2) with zeta = p + i X (harmonic), so d2/dp2 = k Re(6 zeta^-4) =
+    -d2/dX2 and d2/dX dp = -k Im(6 zeta^-4)."""
+    k = params[8] * params[5] * params[6]
+    zeta = complex(dz + params[6], xx)
+    z2 = zeta * zeta
+    f2 = 6.0 / (z2 * z2)
+    return -k * f2.real, -k * f2.imag, k * f2.real
+
+
+@nb.njit(**NJIT_FLAGS)
+def speed_hessian(code, params, x, out):
+    """|u| and its exact first and second derivatives at point x (3,): out (6,) = (|u|, d/dx, d/dz, d2/dx2,
+    d2/dx dz, d2/dz2) (|u| does not depend on y). The branches are _speed's: the log law above z_g, the ridge's
+    speed-up growing linearly in height below z_g, calm at and below the surface. Over the ridge the height
+    above the surface is dz = z - z0 - h(X): d/dx = d/dX - h' d/d dz, and d2/dx2 = U_XX - 2 h' U_Xdz +
+    h'^2 U_dzdz - h'' U_dz."""
+    for i in range(6):
+        out[i] = 0.0
+    a = params[0]
+    z_g = params[1]
+    if code == WIND_LOG:
+        dz = x[2] - params[4]
+        if dz > z_g:
+            out[0] = a * math.log(dz / z_g)
+            out[2] = a / dz
+            out[5] = -a / (dz * dz)
+        return
+    if code != WIND_RIDGE:
+        return
+    height = params[5]
+    half_width = params[6]
+    xx = x[0] - params[7]
+    l2 = half_width * half_width
+    den = xx * xx + l2
+    h = height * l2 / den
+    h1 = -2.0 * height * l2 * xx / (den * den)
+    h2 = 2.0 * height * l2 * (3.0 * xx * xx - l2) / (den * den * den)
+    dz = x[2] - params[4] - h
+    if dz > z_g:
+        du, u_x, u_p = _speed_up(params, xx, dz)
+        u_xx, u_xp, u_pp = _speed_up_second(params, xx, dz)
+        u = a * math.log(dz / z_g) + du
+        u_z = a / dz + u_p
+        u_xz = u_xp
+        u_zz = -a / (dz * dz) + u_pp
+    elif dz > 0.0:
+        du, u_x0, u_p = _speed_up(params, xx, z_g)
+        u_xx, u_xp, u_pp = _speed_up_second(params, xx, z_g)
+        r = dz / z_g  # the speed-up at z_g, scaled linearly down to the surface
+        u = du * r
+        u_x = u_x0 * r
+        u_xx = u_xx * r
+        u_z = du / z_g
+        u_xz = u_x0 / z_g
+        u_zz = 0.0
+    else:
+        return
+    out[0] = u
+    out[1] = u_x - h1 * u_z
+    out[2] = u_z
+    out[3] = u_xx - 2.0 * h1 * u_xz + h1 * h1 * u_zz - h2 * u_z
+    out[4] = u_xz - h1 * u_zz
+    out[5] = u_zz
+
+
+@nb.njit(**NJIT_FLAGS)
 def wind_at(code, params, x, e, out_grad):
     """w = u(x) . e (m/s) at point x (3,) metres for the horizontal unit azimuth e (3,).
 

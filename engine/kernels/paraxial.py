@@ -46,13 +46,12 @@ import numba as nb
 from bentray.engine.constants import CURVE_CIRCULAR, CURVE_PARABOLIC, FACE_UNUSED, NJIT_FLAGS
 from bentray.engine.kernels.nlinear import arc_length as _nl_arc
 from bentray.engine.kernels.nlinear import height as _nl_height
-from bentray.engine.wind import effective_quantity, wind_at
+from bentray.engine.wind import effective_quantity, speed_hessian, wind_at
 
 PAR_SIZE = 12
 # per-segment record ``seg`` (SEG_SIZE,): D_k at the start [0:6], d m0/dgamma_k [6:8] (m0 the traced quantity
 # the segment starts from), d g/dgamma_k [8:14] (g its gradient), d m0 - g.X_k [14:16], wind terms on [16]
 SEG_SIZE = 17
-WIND_FD_REL = 1e-4  # relative step of the wind model's directional differences (wind_terms; 1e-5: rounding 1e-6)
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
@@ -243,39 +242,91 @@ def plain_terms(par, g, seg):
 
 
 @nb.njit(**NJIT_FLAGS)
-def _eff_diff(curve, c_ref, code, params, m_base, g_cell, y, dy, e, de, h, work):
-    """Central difference along (dy, de) of the effective medium (wind.effective_quantity): returns
-    d m and writes d g into work[0:3]. work : (15,) scratch."""
+def _conversion(curve, c_ref, m):
+    """The traced quantity m > 0 as a sound speed: (c, dc/dm, d2c/dm2) (m = n^2 = (c_ref/c)^2 parabolic, c
+    circular, n = c_ref/c n-linear)."""
+    if curve == CURVE_PARABOLIC:
+        c = c_ref / math.sqrt(m)
+        return c, -0.5 * c / m, 0.75 * c / (m * m)
+    if curve == CURVE_CIRCULAR:
+        return m, 1.0, 0.0
+    c = c_ref / m
+    return c, -c / m, 2.0 * c / (m * m)
+
+
+@nb.njit(**NJIT_FLAGS)
+def _eff_point(curve, c_ref, wind, m_c, y, su):
+    """What the effective medium's first-order change at y needs, once per point (_eff_variation takes it to
+    each step): (state, cos_a, c', c'', M'(c_eff), M''(c_eff)) with state 1 (wind here), 0 (no wind: the
+    medium's own), -1 (m or c_eff not positive). Writes the wind speed and its derivatives into su (6,)
+    (wind.speed_hessian)."""
+    code, params, e = wind
+    speed_hessian(code, params, y, su)
+    cos_a = params[2] * e[0] + params[3] * e[1]
+    if not (m_c > 0.0):
+        return -1, cos_a, 0.0, 0.0, 0.0, 0.0
+    if cos_a * su[0] == 0.0 and cos_a * su[1] == 0.0 and cos_a * su[2] == 0.0:
+        return 0, cos_a, 0.0, 0.0, 0.0, 0.0
+    c, dc, ddc = _conversion(curve, c_ref, m_c)
+    c_eff = c + cos_a * su[0]
+    if not (c_eff > 0.0):
+        return -1, cos_a, 0.0, 0.0, 0.0, 0.0
+    if curve == CURVE_PARABOLIC:
+        m_eff = (c_ref / c_eff) * (c_ref / c_eff)
+        return 1, cos_a, dc, ddc, -2.0 * m_eff / c_eff, 6.0 * m_eff / (c_eff * c_eff)
+    if curve == CURVE_CIRCULAR:
+        return 1, cos_a, dc, ddc, 1.0, 0.0
+    m_eff = c_ref / c_eff
+    return 1, cos_a, dc, ddc, -m_eff / c_eff, 2.0 * m_eff / (c_eff * c_eff)
+
+
+@nb.njit(**NJIT_FLAGS)
+def _eff_variation(point, su, wind_dir, g_cell, dy, de, dg):
+    """First-order change of the effective medium (wind.effective_quantity: c_eff = c(m) + u(y).e, converted
+    back) at a point for the step (dy, de) of position and azimuth, in closed form: returns d m_eff and writes
+    d g_eff (3,) into dg. point, su : _eff_point's; wind_dir : (2,) the wind's horizontal unit direction.
+
+    With c = C(m), w = u.e = cos_a |u| and grad w = cos_a grad|u| (cos_a = wind direction . e):
+    d c_eff = C' (g.dy) + grad w.dy + |u| (wind direction . de); d m_eff = M'(c_eff) d c_eff;
+    d g_eff = M''(c_eff) d c_eff (C' g + grad w) + M'(c_eff) (C'' (g.dy) g + cos_a H|u| dy + (wind dir . de)
+    grad|u|), H|u| the exact Hessian of the wind speed. Where the wind and its gradient vanish the medium is its
+    own (effective_quantity returns it unchanged): d m = g.dy, d g = 0. Where m or c_eff is not positive
+    (refused by the curve setup) both are 0."""
+    state, cos_a, dc, ddc, dm, ddm = point
     gdy = g_cell[0] * dy[0] + g_cell[1] * dy[1] + g_cell[2] * dy[2]
-    yp = work[3:6]
-    ep = work[6:9]
-    gm = work[9:12]
-    wg = work[12:15]
     for i in range(3):
-        yp[i] = y[i] + h * dy[i]
-        ep[i] = e[i] + h * de[i]
-    mp = effective_quantity(curve, c_ref, m_base + h * gdy, g_cell, code, params, yp, ep, wg, work[0:3])
-    for i in range(3):
-        yp[i] = y[i] - h * dy[i]
-        ep[i] = e[i] - h * de[i]
-    mm = effective_quantity(curve, c_ref, m_base - h * gdy, g_cell, code, params, yp, ep, wg, gm)
-    for i in range(3):
-        work[i] = (work[i] - gm[i]) / (2.0 * h)
-    return (mp - mm) / (2.0 * h)
+        dg[i] = 0.0
+    if state < 0:
+        return 0.0
+    if state == 0:
+        return gdy
+    cos_d = wind_dir[0] * de[0] + wind_dir[1] * de[1]
+    wx = cos_a * su[1]
+    wz = cos_a * su[2]
+    dce = dc * gdy + wx * dy[0] + wz * dy[2] + su[0] * cos_d
+    # d grad w = cos_a H|u| dy + cos_d grad|u| (|u| does not depend on y)
+    dwx = cos_a * (su[3] * dy[0] + su[4] * dy[2]) + cos_d * su[1]
+    dwz = cos_a * (su[4] * dy[0] + su[5] * dy[2]) + cos_d * su[2]
+    dg[0] = ddm * dce * (dc * g_cell[0] + wx) + dm * (ddc * gdy * g_cell[0] + dwx)
+    dg[1] = ddm * dce * (dc * g_cell[1]) + dm * (ddc * gdy * g_cell[1])
+    dg[2] = ddm * dce * (dc * g_cell[2] + wz) + dm * (ddc * gdy * g_cell[2] + dwz)
+    return dm * dce
 
 
 @nb.njit(**NJIT_FLAGS)
 def wind_terms(curve, c_ref, wind, cell_model, x, d, par, seg, work):
     """The segment record with wind (after tangent_derivs): d m0/dgamma_k and d g/dgamma_k of the effective
-    medium the traversal sets the segment up with (its value at x, its gradient at the chord middle).
+    medium the traversal sets the segment up with (its value at x, its gradient at the chord middle), in
+    closed form (_eff_variation: the wind speed's exact Hessian).
 
     wind : (code, params, e) the ray's wind and unit horizontal launch azimuth e (de/d az = (-e_y, e_x, 0),
     de/d el = 0); cell_model : (m_cell_x, g_cell, planes, neighbours, cell_size, mid_ok, x_mid) the cell's own
     traced quantity at x and gradient, its face planes, and the chord middle (mid_ok False: the gradient was
     taken at x). The chord middle x + (L/2) d moves with X_k, D_k and the chord length L to the first face f
-    ahead: dL = -(m_f.X_k + L m_f.D_k)/(m_f.d). The wind model's own derivatives are central differences
-    along these directions (step WIND_FD_REL of the cell size; at 1e-5 their rounding put 1e-6 relative
-    noise on P_k along T in 2 mm slabs: docs/physics.md §10).
+    ahead: dL = -(m_f.X_k + L m_f.D_k)/(m_f.d). Until 2026-12 these derivatives were central differences
+    (four effective-medium evaluations per launch angle); they remain the test oracle
+    (tests/reference/wind_fd.py), which this agrees with to their truncation (docs/physics.md §10). The wind
+    speed and its Hessian are evaluated once at x and once at the chord middle for both launch angles.
     work : (21,) scratch.
     """
     code, params, e = wind
@@ -293,8 +344,14 @@ def wind_terms(curve, c_ref, wind, cell_model, x, d, par, seg, work):
                     best = dist
                     bf = f
     m_mid = m_x + g_cell[0] * (x_mid[0] - x[0]) + g_cell[1] * (x_mid[1] - x[1]) + g_cell[2] * (x_mid[2] - x[2])
+    wind_dir = params[2:4]
+    su_x = work[3:9]
+    su_mid = work[9:15]
     de = work[15:18]
     dxm = work[18:21]
+    at_x = _eff_point(curve, c_ref, wind, m_x, x, su_x)
+    use_mid = mid_ok and bf >= 0
+    at_mid = _eff_point(curve, c_ref, wind, m_mid, x_mid, su_mid) if use_mid else at_x
     for k in range(2):
         o = 3 * k
         xk = par[o : o + 3]
@@ -305,11 +362,8 @@ def wind_terms(curve, c_ref, wind, cell_model, x, d, par, seg, work):
             de[0] = -e[1]
             de[1] = e[0]
         de[2] = 0.0
-        xn = math.sqrt(xk[0] * xk[0] + xk[1] * xk[1] + xk[2] * xk[2])
-        h = WIND_FD_REL * cell_size / max(xn, cell_size) if cell_size > 0.0 else WIND_FD_REL
-        dm0 = _eff_diff(curve, c_ref, code, params, m_x, g_cell, x, xk, e, de, h, work)
-        seg[6 + k] = dm0
-        if mid_ok and bf >= 0:
+        seg[6 + k] = _eff_variation(at_x, su_x, wind_dir, g_cell, xk, de, work[0:3])
+        if use_mid:
             md = planes[bf, 0] * d[0] + planes[bf, 1] * d[1] + planes[bf, 2] * d[2]
             if best > 0.0:
                 mxk = planes[bf, 0] * xk[0] + planes[bf, 1] * xk[1] + planes[bf, 2] * xk[2]
@@ -321,9 +375,7 @@ def wind_terms(curve, c_ref, wind, cell_model, x, d, par, seg, work):
                 half = 0.0
             for i in range(3):
                 dxm[i] = xk[i] + 0.5 * dlen * d[i] + half * seg[o + i]
-            xn = math.sqrt(dxm[0] * dxm[0] + dxm[1] * dxm[1] + dxm[2] * dxm[2])
-            h = WIND_FD_REL * cell_size / max(xn, cell_size) if cell_size > 0.0 else WIND_FD_REL
-            _eff_diff(curve, c_ref, code, params, m_mid, g_cell, x_mid, dxm, e, de, h, work)
+            _eff_variation(at_mid, su_mid, wind_dir, g_cell, dxm, de, work[0:3])
         for i in range(3):
             seg[8 + o + i] = work[i]
     seg[16] = 1.0
