@@ -80,6 +80,7 @@ cuda: Any = _cuda  # numba.cuda's grid / local are injected at run time (no type
 
 _CS_SIZE = curves.CS_SIZE  # module constants: cuda.local.array needs a compile-time literal size
 _PAR_SIZE = paraxial.PAR_SIZE
+_SEG_SIZE = paraxial.SEG_SIZE
 _SAMPLE_SIZE = beams.SAMPLE_SIZE
 _WORK_SIZE = beams.WORK_SIZE
 _PB_SIZE = beams.PB_SIZE
@@ -151,6 +152,10 @@ def trace_rays_cuda(mesh, prm, rays, b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts
     par_on = deposit_on and cell >= 0
     par = cuda.local.array(_PAR_SIZE, nb.float64)
     par_tmp = cuda.local.array(_PAR_SIZE, nb.float64)
+    seg = cuda.local.array(_SEG_SIZE, nb.float64)  # the segment record with wind (paraxial.beam_wind_terms)
+    pwork = cuda.local.array(12, nb.float64)
+    for i in range(_SEG_SIZE):
+        seg[i] = 0.0
     for i in range(_PAR_SIZE):
         par[i] = 0.0
         par_tmp[i] = 0.0
@@ -231,6 +236,7 @@ def trace_rays_cuda(mesh, prm, rays, b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts
             break
         steps += 1
         m0 = _media_at(media_ref, ref_point, gradient, cell, x)
+        m_raw = m0
         for i in range(3):
             g[i] = gradient[cell, i]
         if wind_on:
@@ -269,9 +275,17 @@ def trace_rays_cuda(mesh, prm, rays, b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts
         if not curves.setup(curve, m0, g, d, cs):
             status = STATUS_LOST
             break
+        if par_on and wind_on:  # beams with wind: d m0 in closed form, each cell's gradient fixed (trace_one)
+            paraxial.tangent_derivs(par, d, p_norm, seg)
+            paraxial.beam_wind_terms(curve, c_ref, (ray_wind, wind_params, e_wind), m_raw, gradient[cell], x, par,
+                                     seg, pwork)  # fmt: skip
+            paraxial.finish_terms(par, g, seg)
+            paraxial.drop_gradient_terms(seg)
         if par_on:  # the segment restarts from this cell's model at x: p' = n'(x) d (docs/physics.md §10)
             n_new = math.sqrt(m0)
-            if not smooth:  # smooth medium: the state carries on as it is (traverse.trace_one)
+            if wind_on:
+                paraxial.restart_dm(par, d, p_norm, n_new, seg)
+            elif not smooth:  # smooth medium: the state carries on as it is (traverse.trace_one)
                 paraxial.restart(par, d, p_norm, n_new, g)
             p_norm = n_new
         cell_size = size[cell]

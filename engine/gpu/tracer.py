@@ -170,7 +170,9 @@ def trace_cuda(
     t0 = time.perf_counter()
     for a in range(0, n, LAUNCH_RAYS):
         b = min(a + LAUNCH_RAYS, n)
-        part = Rays(*(r[a:b] if r.shape[0] == n else r for r in rays))  # device views of rays a..b
+        # device views of rays a..b; an empty per-ray array (f_weights without directivity: (n, 0)) is passed
+        # whole, as numba-cuda refuses to slice an empty allocation (the kernel reads it only when it has columns)
+        part = Rays(*(r[a:b] if r.shape[0] == n and r.size else r for r in rays))
         blocks = (b - a + THREADS_PER_BLOCK - 1) // THREADS_PER_BLOCK
         trace_rays_cuda[blocks, THREADS_PER_BLOCK](dmesh, prm, part, *beam_args)
     cuda.synchronize()

@@ -22,7 +22,7 @@ def _has_device() -> bool:
         return False
     try:
         from numba import cuda
-    except ImportError:
+    except Exception:  # not installed, or an import that fails (numba-cuda 0.30 under numpy 2.5 warns, here an error)
         return False
     try:
         return bool(cuda.is_available())
