@@ -301,25 +301,22 @@ def _speed_up_second(params, xx, dz):
 
 
 @nb.njit(**NJIT_FLAGS)
-def speed_hessian(code, params, x, out):
-    """|u| and its exact first and second derivatives at point x (3,): out (6,) = (|u|, d/dx, d/dz, d2/dx2,
-    d2/dx dz, d2/dz2) (|u| does not depend on y). The branches are _speed's: the log law above z_g, the ridge's
-    speed-up growing linearly in height below z_g, calm at and below the surface. Over the ridge the height
-    above the surface is dz = z - z0 - h(X): d/dx = d/dX - h' d/d dz, and d2/dx2 = U_XX - 2 h' U_Xdz +
-    h'^2 U_dzdz - h'' U_dz."""
-    for i in range(6):
-        out[i] = 0.0
+def speed_hessian(code, params, x):
+    """|u| and its exact first and second derivatives at point x (3,): the tuple (|u|, d/dx, d/dz, d2/dx2,
+    d2/dx dz, d2/dz2) (|u| does not depend on y; a tuple, not an array, so that the paraxial kernels' hot
+    loop makes no array views). The branches are _speed's: the log law above z_g, the ridge's speed-up
+    growing linearly in height below z_g, calm at and below the surface. Over the ridge the height above the
+    surface is dz = z - z0 - h(X): d/dx = d/dX - h' d/d dz, and d2/dx2 = U_XX - 2 h' U_Xdz + h'^2 U_dzdz -
+    h'' U_dz."""
     a = params[0]
     z_g = params[1]
     if code == WIND_LOG:
         dz = x[2] - params[4]
         if dz > z_g:
-            out[0] = a * math.log(dz / z_g)
-            out[2] = a / dz
-            out[5] = -a / (dz * dz)
-        return
+            return a * math.log(dz / z_g), 0.0, a / dz, 0.0, 0.0, -a / (dz * dz)
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     if code != WIND_RIDGE:
-        return
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     height = params[5]
     half_width = params[6]
     xx = x[0] - params[7]
@@ -347,13 +344,15 @@ def speed_hessian(code, params, x, out):
         u_xz = u_x0 / z_g
         u_zz = 0.0
     else:
-        return
-    out[0] = u
-    out[1] = u_x - h1 * u_z
-    out[2] = u_z
-    out[3] = u_xx - 2.0 * h1 * u_xz + h1 * h1 * u_zz - h2 * u_z
-    out[4] = u_xz - h1 * u_zz
-    out[5] = u_zz
+        return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    return (
+        u,
+        u_x - h1 * u_z,
+        u_z,
+        u_xx - 2.0 * h1 * u_xz + h1 * h1 * u_zz - h2 * u_z,
+        u_xz - h1 * u_zz,
+        u_zz,
+    )
 
 
 @nb.njit(**NJIT_FLAGS)

@@ -255,62 +255,60 @@ def _conversion(curve, c_ref, m):
 
 
 @nb.njit(**NJIT_FLAGS)
-def _eff_point(curve, c_ref, wind, m_c, y, su):
+def _eff_point(curve, c_ref, wind, m_c, y):
     """What the effective medium's first-order change at y needs, once per point (_eff_variation takes it to
-    each step): (state, cos_a, c', c'', M'(c_eff), M''(c_eff)) with state 1 (wind here), 0 (no wind: the
-    medium's own), -1 (m or c_eff not positive). Writes the wind speed and its derivatives into su (6,)
-    (wind.speed_hessian)."""
+    each step): (state, cos_a, c', c'', M'(c_eff), M''(c_eff), su) with state 1 (wind here), 0 (no wind: the
+    medium's own), -1 (m or c_eff not positive) and su the wind speed and its derivatives
+    (wind.speed_hessian). Tuples throughout: the segment loop makes no array views here."""
     code, params, e = wind
-    speed_hessian(code, params, y, su)
+    su = speed_hessian(code, params, y)
     cos_a = params[2] * e[0] + params[3] * e[1]
     if not (m_c > 0.0):
-        return -1, cos_a, 0.0, 0.0, 0.0, 0.0
+        return -1, cos_a, 0.0, 0.0, 0.0, 0.0, su
     if cos_a * su[0] == 0.0 and cos_a * su[1] == 0.0 and cos_a * su[2] == 0.0:
-        return 0, cos_a, 0.0, 0.0, 0.0, 0.0
+        return 0, cos_a, 0.0, 0.0, 0.0, 0.0, su
     c, dc, ddc = _conversion(curve, c_ref, m_c)
     c_eff = c + cos_a * su[0]
     if not (c_eff > 0.0):
-        return -1, cos_a, 0.0, 0.0, 0.0, 0.0
+        return -1, cos_a, 0.0, 0.0, 0.0, 0.0, su
     if curve == CURVE_PARABOLIC:
         m_eff = (c_ref / c_eff) * (c_ref / c_eff)
-        return 1, cos_a, dc, ddc, -2.0 * m_eff / c_eff, 6.0 * m_eff / (c_eff * c_eff)
+        return 1, cos_a, dc, ddc, -2.0 * m_eff / c_eff, 6.0 * m_eff / (c_eff * c_eff), su
     if curve == CURVE_CIRCULAR:
-        return 1, cos_a, dc, ddc, 1.0, 0.0
+        return 1, cos_a, dc, ddc, 1.0, 0.0, su
     m_eff = c_ref / c_eff
-    return 1, cos_a, dc, ddc, -m_eff / c_eff, 2.0 * m_eff / (c_eff * c_eff)
+    return 1, cos_a, dc, ddc, -m_eff / c_eff, 2.0 * m_eff / (c_eff * c_eff), su
 
 
 @nb.njit(**NJIT_FLAGS)
-def _eff_variation(point, su, wind_dir, g_cell, dy, de, dg):
+def _eff_variation(point, g_cell, dy, cos_d):
     """First-order change of the effective medium (wind.effective_quantity: c_eff = c(m) + u(y).e, converted
-    back) at a point for the step (dy, de) of position and azimuth, in closed form: returns d m_eff and writes
-    d g_eff (3,) into dg. point, su : _eff_point's; wind_dir : (2,) the wind's horizontal unit direction.
+    back) at a point for the step (dy, de) of position and azimuth, in closed form: (d m_eff, d g_eff x, y,
+    z). point : _eff_point's; g_cell : (3,); dy : 3-tuple; cos_d = wind direction . de.
 
     With c = C(m), w = u.e = cos_a |u| and grad w = cos_a grad|u| (cos_a = wind direction . e):
-    d c_eff = C' (g.dy) + grad w.dy + |u| (wind direction . de); d m_eff = M'(c_eff) d c_eff;
-    d g_eff = M''(c_eff) d c_eff (C' g + grad w) + M'(c_eff) (C'' (g.dy) g + cos_a H|u| dy + (wind dir . de)
-    grad|u|), H|u| the exact Hessian of the wind speed. Where the wind and its gradient vanish the medium is its
-    own (effective_quantity returns it unchanged): d m = g.dy, d g = 0. Where m or c_eff is not positive
-    (refused by the curve setup) both are 0."""
-    state, cos_a, dc, ddc, dm, ddm = point
-    gdy = g_cell[0] * dy[0] + g_cell[1] * dy[1] + g_cell[2] * dy[2]
-    for i in range(3):
-        dg[i] = 0.0
+    d c_eff = C' (g.dy) + grad w.dy + |u| cos_d; d m_eff = M'(c_eff) d c_eff;
+    d g_eff = M''(c_eff) d c_eff (C' g + grad w) + M'(c_eff) (C'' (g.dy) g + cos_a H|u| dy + cos_d grad|u|),
+    H|u| the exact Hessian of the wind speed. Where the wind and its gradient vanish the medium is its own
+    (effective_quantity returns it unchanged): d m = g.dy, d g = 0. Where m or c_eff is not positive (refused
+    by the curve setup) both are 0."""
+    state, cos_a, dc, ddc, dm, ddm, su = point
+    g0, g1, g2 = g_cell[0], g_cell[1], g_cell[2]
+    gdy = g0 * dy[0] + g1 * dy[1] + g2 * dy[2]
     if state < 0:
-        return 0.0
+        return 0.0, 0.0, 0.0, 0.0
     if state == 0:
-        return gdy
-    cos_d = wind_dir[0] * de[0] + wind_dir[1] * de[1]
+        return gdy, 0.0, 0.0, 0.0
     wx = cos_a * su[1]
     wz = cos_a * su[2]
     dce = dc * gdy + wx * dy[0] + wz * dy[2] + su[0] * cos_d
     # d grad w = cos_a H|u| dy + cos_d grad|u| (|u| does not depend on y)
     dwx = cos_a * (su[3] * dy[0] + su[4] * dy[2]) + cos_d * su[1]
     dwz = cos_a * (su[4] * dy[0] + su[5] * dy[2]) + cos_d * su[2]
-    dg[0] = ddm * dce * (dc * g_cell[0] + wx) + dm * (ddc * gdy * g_cell[0] + dwx)
-    dg[1] = ddm * dce * (dc * g_cell[1]) + dm * (ddc * gdy * g_cell[1])
-    dg[2] = ddm * dce * (dc * g_cell[2] + wz) + dm * (ddc * gdy * g_cell[2] + dwz)
-    return dm * dce
+    dgx = ddm * dce * (dc * g0 + wx) + dm * (ddc * gdy * g0 + dwx)
+    dgy = ddm * dce * (dc * g1) + dm * (ddc * gdy * g1)
+    dgz = ddm * dce * (dc * g2 + wz) + dm * (ddc * gdy * g2 + dwz)
+    return dm * dce, dgx, dgy, dgz
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -326,8 +324,9 @@ def wind_terms(curve, c_ref, wind, cell_model, x, d, par, seg, work):
     ahead: dL = -(m_f.X_k + L m_f.D_k)/(m_f.d). Until 2026-12 these derivatives were central differences
     (four effective-medium evaluations per launch angle); they remain the test oracle
     (tests/reference/wind_fd.py), which this agrees with to their truncation (docs/physics.md §10). The wind
-    speed and its Hessian are evaluated once at x and once at the chord middle for both launch angles.
-    work : (21,) scratch.
+    speed and its Hessian are evaluated once at x and once at the chord middle for both launch angles, and
+    the loop makes no array views (each costs two atomic reference-count updates). work : unused (kept for
+    the record's callers).
     """
     code, params, e = wind
     m_x, g_cell, planes, neighbours, cell_size, mid_ok, x_mid = cell_model
@@ -344,25 +343,16 @@ def wind_terms(curve, c_ref, wind, cell_model, x, d, par, seg, work):
                     best = dist
                     bf = f
     m_mid = m_x + g_cell[0] * (x_mid[0] - x[0]) + g_cell[1] * (x_mid[1] - x[1]) + g_cell[2] * (x_mid[2] - x[2])
-    wind_dir = params[2:4]
-    su_x = work[3:9]
-    su_mid = work[9:15]
-    de = work[15:18]
-    dxm = work[18:21]
-    at_x = _eff_point(curve, c_ref, wind, m_x, x, su_x)
+    at_x = _eff_point(curve, c_ref, wind, m_x, x)
     use_mid = mid_ok and bf >= 0
-    at_mid = _eff_point(curve, c_ref, wind, m_mid, x_mid, su_mid) if use_mid else at_x
+    at_mid = _eff_point(curve, c_ref, wind, m_mid, x_mid) if use_mid else at_x
     for k in range(2):
         o = 3 * k
-        xk = par[o : o + 3]
-        if k == 0:
-            de[0] = 0.0
-            de[1] = 0.0
-        else:
-            de[0] = -e[1]
-            de[1] = e[0]
-        de[2] = 0.0
-        seg[6 + k] = _eff_variation(at_x, su_x, wind_dir, g_cell, xk, de, work[0:3])
+        xk = (par[o], par[o + 1], par[o + 2])
+        # de/d el = 0; de/d az = (-e_y, e_x, 0): wind direction . de
+        cos_d = 0.0 if k == 0 else -params[2] * e[1] + params[3] * e[0]
+        dm0, dgx, dgy, dgz = _eff_variation(at_x, g_cell, xk, cos_d)
+        seg[6 + k] = dm0
         if use_mid:
             md = planes[bf, 0] * d[0] + planes[bf, 1] * d[1] + planes[bf, 2] * d[2]
             if best > 0.0:
@@ -373,11 +363,15 @@ def wind_terms(curve, c_ref, wind, cell_model, x, d, par, seg, work):
             else:
                 dlen = 0.0
                 half = 0.0
-            for i in range(3):
-                dxm[i] = xk[i] + 0.5 * dlen * d[i] + half * seg[o + i]
-            _eff_variation(at_mid, su_mid, wind_dir, g_cell, dxm, de, work[0:3])
-        for i in range(3):
-            seg[8 + o + i] = work[i]
+            dxm = (
+                xk[0] + 0.5 * dlen * d[0] + half * seg[o],
+                xk[1] + 0.5 * dlen * d[1] + half * seg[o + 1],
+                xk[2] + 0.5 * dlen * d[2] + half * seg[o + 2],
+            )
+            _, dgx, dgy, dgz = _eff_variation(at_mid, g_cell, dxm, cos_d)
+        seg[8 + o] = dgx
+        seg[9 + o] = dgy
+        seg[10 + o] = dgz
     seg[16] = 1.0
 
 
