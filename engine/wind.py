@@ -254,6 +254,21 @@ def _speed_up(params, xx, dz):
     return du, d_x, d_p
 
 
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _ridge_surface(params, x0):
+    """The ridge's surface at world x0: (X = x0 - crest x, h(X) = H L^2 / (X^2 + L^2), h'(X), h''(X)) in metres
+    above the ridge's base (H height_m, L half_width_m)."""
+    height = params[5]
+    half_width = params[6]
+    xx = x0 - params[7]
+    l2 = half_width * half_width
+    den = xx * xx + l2
+    h = height * l2 / den
+    h1 = -2.0 * height * l2 * xx / (den * den)
+    h2 = 2.0 * height * l2 * (3.0 * xx * xx - l2) / (den * den * den)
+    return xx, h, h1, h2
+
+
 @nb.njit(**NJIT_FLAGS)
 def _speed(code, params, x):
     """(|u|, d|u|/dx, d|u|/dz) at point x (3,); |u| does not depend on y."""
@@ -264,13 +279,7 @@ def _speed(code, params, x):
         if dz > z_g:
             return a * math.log(dz / z_g), 0.0, a / dz
         return 0.0, 0.0, 0.0
-    height = params[5]
-    half_width = params[6]
-    xx = x[0] - params[7]
-    l2 = half_width * half_width
-    den = xx * xx + l2
-    h = height * l2 / den
-    dh_dx = -2.0 * height * l2 * xx / (den * den)
+    xx, h, dh_dx, _ = _ridge_surface(params, x[0])
     dz = x[2] - params[4] - h
     if dz > z_g:
         du, d_x, d_p = _speed_up(params, xx, dz)
@@ -317,14 +326,7 @@ def speed_hessian(code, params, x):
         return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     if code != WIND_RIDGE:
         return 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
-    height = params[5]
-    half_width = params[6]
-    xx = x[0] - params[7]
-    l2 = half_width * half_width
-    den = xx * xx + l2
-    h = height * l2 / den
-    h1 = -2.0 * height * l2 * xx / (den * den)
-    h2 = 2.0 * height * l2 * (3.0 * xx * xx - l2) / (den * den * den)
+    xx, h, h1, h2 = _ridge_surface(params, x[0])
     dz = x[2] - params[4] - h
     if dz > z_g:
         du, u_x, u_p = _speed_up(params, xx, dz)

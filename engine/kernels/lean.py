@@ -181,6 +181,25 @@ def _lane_finish(fs, ist, state, counts):
 
 
 @nb.njit(**NJIT_FLAGS)
+def _lane_take(lane, next_ray, hi, rays_in, rays_out, fst, ist):
+    """Load the next ray that starts inside the mesh into ``lane`` (rays starting outside it are written out
+    as lost at once); returns the new next_ray. The lane is left idle (ray -1) when none is left below hi.
+    rays_in : (origins, directions, cells); rays_out : (out_state, out_counts)."""
+    origins, directions, cells = rays_in
+    out_state, out_counts = rays_out
+    ist[lane, _I_RAY] = -1
+    while next_ray < hi:
+        ray = next_ray
+        next_ray += 1
+        _lane_start(ray, origins[ray], directions[ray], cells[ray], fst[lane], ist[lane])
+        if ist[lane, _I_STATUS] == STATUS_RUNNING:
+            return next_ray
+        _lane_finish(fst[lane], ist[lane], out_state[ray], out_counts[ray])
+        ist[lane, _I_RAY] = -1
+    return next_ray
+
+
+@nb.njit(**NJIT_FLAGS)
 def trace_block_lanes(packed, mesh, c_ref, limits, origins, directions, cells, out_state, out_counts, lo, hi):
     """Trace rays lo..hi-1 in ``lanes`` interleaved lanes on packed cell records (mesh/packed.py).
 
@@ -216,16 +235,11 @@ def trace_block_lanes(packed, mesh, c_ref, limits, origins, directions, cells, o
     dn = np.empty(3)
     next_ray = lo
     busy = 0
-    for lane in range(n_lanes):  # fill the lanes (rays starting outside the mesh finish at once)
-        while next_ray < hi:
-            ray = next_ray
-            next_ray += 1
-            _lane_start(ray, origins[ray], directions[ray], cells[ray], fst[lane], ist[lane])
-            if ist[lane, _I_STATUS] == STATUS_RUNNING:
-                busy += 1
-                break
-            _lane_finish(fst[lane], ist[lane], out_state[ray], out_counts[ray])
-            ist[lane, _I_RAY] = -1
+    rays_in = (origins, directions, cells)
+    rays_out = (out_state, out_counts)
+    for lane in range(n_lanes):  # fill the lanes
+        next_ray = _lane_take(lane, next_ray, hi, rays_in, rays_out, fst, ist)
+        busy += ist[lane, _I_RAY] >= 0
     while busy > 0:
         for lane in range(n_lanes):
             ray = ist[lane, _I_RAY]
@@ -421,12 +435,5 @@ def trace_block_lanes(packed, mesh, c_ref, limits, origins, directions, cells, o
             _lane_finish(fst[lane], ist[lane], out_state[ray], out_counts[ray])
             ist[lane, _I_RAY] = -1
             busy -= 1
-            while next_ray < hi:
-                ray = next_ray
-                next_ray += 1
-                _lane_start(ray, origins[ray], directions[ray], cells[ray], fst[lane], ist[lane])
-                if ist[lane, _I_STATUS] == STATUS_RUNNING:
-                    busy += 1
-                    break
-                _lane_finish(fst[lane], ist[lane], out_state[ray], out_counts[ray])
-                ist[lane, _I_RAY] = -1
+            next_ray = _lane_take(lane, next_ray, hi, rays_in, rays_out, fst, ist)
+            busy += ist[lane, _I_RAY] >= 0

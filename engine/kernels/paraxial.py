@@ -242,6 +242,24 @@ def plain_terms(par, g, seg):
 
 
 @nb.njit(**NJIT_FLAGS)
+def chord_face(planes, neighbours, x, d):
+    """The straight chord from x along d to the first face ahead: (length L in metres, face index), or
+    (inf, -1) when no face is ahead. planes (K, 4), neighbours (K,) of one cell."""
+    best = math.inf
+    bf = -1
+    for f in range(planes.shape[0]):
+        if neighbours[f] == FACE_UNUSED:
+            continue
+        md = planes[f, 0] * d[0] + planes[f, 1] * d[1] + planes[f, 2] * d[2]
+        if md > 0.0:
+            dist = (planes[f, 3] - planes[f, 0] * x[0] - planes[f, 1] * x[1] - planes[f, 2] * x[2]) / md
+            if dist < best:
+                best = dist
+                bf = f
+    return best, bf
+
+
+@nb.njit(**NJIT_FLAGS)
 def _conversion(curve, c_ref, m):
     """The traced quantity m > 0 as a sound speed: (c, dc/dm, d2c/dm2) (m = n^2 = (c_ref/c)^2 parabolic, c
     circular, n = c_ref/c n-linear)."""
@@ -330,18 +348,7 @@ def wind_terms(curve, c_ref, wind, cell_model, x, d, par, seg, work):
     """
     code, params, e = wind
     m_x, g_cell, planes, neighbours, cell_size, mid_ok, x_mid = cell_model
-    best = math.inf
-    bf = -1
-    if mid_ok:
-        for f in range(planes.shape[0]):
-            if neighbours[f] == FACE_UNUSED:
-                continue
-            md = planes[f, 0] * d[0] + planes[f, 1] * d[1] + planes[f, 2] * d[2]
-            if md > 0.0:
-                dist = (planes[f, 3] - planes[f, 0] * x[0] - planes[f, 1] * x[1] - planes[f, 2] * x[2]) / md
-                if dist < best:
-                    best = dist
-                    bf = f
+    best, bf = chord_face(planes, neighbours, x, d) if mid_ok else (math.inf, -1)
     m_mid = m_x + g_cell[0] * (x_mid[0] - x[0]) + g_cell[1] * (x_mid[1] - x[1]) + g_cell[2] * (x_mid[2] - x[2])
     at_x = _eff_point(curve, c_ref, wind, m_x, x)
     use_mid = mid_ok and bf >= 0

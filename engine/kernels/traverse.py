@@ -160,15 +160,7 @@ def _chord_middle(planes, neighbours, x, d, out):
     The cell is convex, so the middle lies inside it: the wind gradient sampled there is the cell's
     secant slope along the ray to second order (the entry point's own gradient is only first order).
     """
-    best = math.inf
-    for f in range(planes.shape[0]):
-        if neighbours[f] == FACE_UNUSED:
-            continue
-        md = planes[f, 0] * d[0] + planes[f, 1] * d[1] + planes[f, 2] * d[2]
-        if md > 0.0:
-            dist = (planes[f, 3] - planes[f, 0] * x[0] - planes[f, 1] * x[1] - planes[f, 2] * x[2]) / md
-            if dist < best:
-                best = dist
+    best, _ = paraxial.chord_face(planes, neighbours, x, d)
     if not (best < math.inf):
         return False
     if best < 0.0:

@@ -13,7 +13,8 @@ import math
 
 import numba as nb
 
-from bentray.engine.constants import FACE_UNUSED, NJIT_FLAGS
+from bentray.engine.constants import NJIT_FLAGS
+from bentray.engine.kernels.paraxial import chord_face
 from bentray.engine.wind import effective_quantity
 
 WIND_FD_REL = 1e-4
@@ -58,18 +59,7 @@ def wind_terms(curve, c_ref, wind, cell_model, x, d, par, seg, work):
     """
     code, params, e = wind
     m_x, g_cell, planes, neighbours, cell_size, mid_ok, x_mid = cell_model
-    best = math.inf
-    bf = -1
-    if mid_ok:
-        for f in range(planes.shape[0]):
-            if neighbours[f] == FACE_UNUSED:
-                continue
-            md = planes[f, 0] * d[0] + planes[f, 1] * d[1] + planes[f, 2] * d[2]
-            if md > 0.0:
-                dist = (planes[f, 3] - planes[f, 0] * x[0] - planes[f, 1] * x[1] - planes[f, 2] * x[2]) / md
-                if dist < best:
-                    best = dist
-                    bf = f
+    best, bf = chord_face(planes, neighbours, x, d) if mid_ok else (math.inf, -1)
     m_mid = m_x + g_cell[0] * (x_mid[0] - x[0]) + g_cell[1] * (x_mid[1] - x[1]) + g_cell[2] * (x_mid[2] - x[2])
     de = work[15:18]
     dxm = work[18:21]
