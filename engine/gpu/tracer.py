@@ -32,7 +32,7 @@ from bentray.engine.result import TraceResult
 from bentray.engine.tracer import _trace_result, ray_inputs
 from bentray.engine.wind import WIND_NONE, check_wind
 
-__all__ = ["LAUNCH_RAYS", "device_mesh", "trace_cuda"]
+__all__ = ["LAUNCH_RAYS", "device_mesh", "launch_views", "trace_cuda"]
 
 _SIM = simulator_enabled()
 # rays per kernel launch: the beam scratch holds 5 F doubles per thread (F bands: 10 MB at 8 bands)
@@ -73,6 +73,14 @@ def device_mesh(mesh: CellMesh) -> tuple[CellMesh, float]:
     cuda.synchronize()
     _MESH_CACHE[:] = [(mesh, dev)]
     return dev, time.perf_counter() - t0
+
+
+def launch_views(arrays: Any, a: int, b: int, n: int) -> list[Any]:
+    """Rows a..b of each per-ray array (first axis n) of ``arrays``, the others as they are. An empty per-ray
+    array (f_weights without directivity: (n, 0)) is passed whole: numba-cuda refuses to slice an empty device
+    allocation ("non-empty slice into empty slice"; every launch without directivity crashed on an H200), and
+    the kernel reads that array only when it has a column per band."""
+    return [r[a:b] if r.shape[0] == n and r.size else r for r in arrays]
 
 
 def trace_cuda(
@@ -170,9 +178,7 @@ def trace_cuda(
     t0 = time.perf_counter()
     for a in range(0, n, LAUNCH_RAYS):
         b = min(a + LAUNCH_RAYS, n)
-        # device views of rays a..b; an empty per-ray array (f_weights without directivity: (n, 0)) is passed
-        # whole, as numba-cuda refuses to slice an empty allocation (the kernel reads it only when it has columns)
-        part = Rays(*(r[a:b] if r.shape[0] == n and r.size else r for r in rays))
+        part = Rays(*launch_views(rays, a, b, n))
         blocks = (b - a + THREADS_PER_BLOCK - 1) // THREADS_PER_BLOCK
         trace_rays_cuda[blocks, THREADS_PER_BLOCK](dmesh, prm, part, *beam_args)
     cuda.synchronize()

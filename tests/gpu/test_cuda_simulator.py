@@ -17,6 +17,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 pytest.importorskip("numba_cuda", reason="numba-cuda (the gpu extra) is not installed")
@@ -62,3 +63,19 @@ def test_bentray_run_with_solver_device_cuda_matches_cpu():
     out = _run("run")
     assert out["identical"], out
     assert out["rays"] == 5 and out["reflections"] > 0
+
+
+def test_launch_views_pass_empty_per_ray_arrays_whole():
+    """engine/gpu/tracer.launch_views: rows a..b of the per-ray arrays, an empty (n, 0) one (f_weights without
+    directivity) and the arrays of another length untouched. Slicing the empty one crashed every launch without
+    directivity on a real device (numba-cuda refuses a slice into an empty allocation), which the simulator
+    cannot show; the identity is the guard."""
+    from bentray.engine.gpu.tracer import launch_views
+
+    n = 10
+    per_ray = np.arange(3 * n, dtype=float).reshape(n, 3)
+    empty = np.zeros((n, 0))
+    other = np.arange(4.0)
+    views = launch_views((per_ray, empty, other), 2, 7, n)
+    assert np.array_equal(views[0], per_ray[2:7])
+    assert views[1] is empty and views[2] is other
