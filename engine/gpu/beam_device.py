@@ -97,7 +97,7 @@ def _deposit_chord_atomic(grid, acc, chord, scratch, terms):
             k0, k1 = beams._index_range(z_lo, z_hi, zo, grid.spacing[2], nz)
             for k in range(k0, k1 + 1):
                 v = (i * ny + j) * nz + k
-                if beams.point_beam_terms(grid, chord, px, py, zo + k * grid.spacing[2], scratch, terms):
+                if beams.point_beam_terms(grid, chord, px, py, zo + k * grid.spacing[2], terms):
                     _add_atomic(grid, acc, chord, v, terms)
                     count += 1
     if grid.mirror.shape[0] > 0:
@@ -130,7 +130,7 @@ def _deposit_mirrored_atomic(grid, acc, chord, scratch, terms):
                     continue
                 if img[2] < z_lo or img[2] > z_hi:
                     continue
-                if beams.point_beam_terms(grid, chord, img[0], img[1], img[2], scratch, terms):
+                if beams.point_beam_terms(grid, chord, img[0], img[1], img[2], terms):
                     _add_atomic(grid, acc, chord, (i * ny + j) * nz + k, terms)
                     count += 1
     return count
@@ -149,7 +149,7 @@ def _deposit_points_atomic(grid, acc, pts, chord, scratch, terms):
                 b = (i * ny + j) * nz + k
                 for e in range(pts.bin_start[b], pts.bin_start[b + 1]):
                     v = pts.bin_items[e]
-                    if beams.point_beam_terms(grid, chord, pts.xyz[v, 0], pts.xyz[v, 1], pts.xyz[v, 2], scratch, terms):
+                    if beams.point_beam_terms(grid, chord, pts.xyz[v, 0], pts.xyz[v, 1], pts.xyz[v, 2], terms):
                         _add_atomic(grid, acc, chord, v, terms)
                         count += 1
     return count

@@ -166,11 +166,12 @@ def chord_group(n_refl_groups, reflections, kmah):
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
-def _transverse_basis(x1, x2, t, dg1, dg2, w_min, arc, w_fres, cap1, cap2, out):
+def _transverse_basis(x1, x2, t, dg1, dg2, w_min, arc, w_fres, cap1, cap2):
     """Orthonormal transverse basis e1, e2 and the triangular map of dgamma into it.
 
-    x1, x2 : X_1, X_2 (3,); t : unit tangent. Writes out[0:3] = e1, out[3:6] = e2 and returns
-    (a11, a12, a22, a11c, a22c): ``X_perp dgamma = (a11 dg1 + a12 dg2) e1 + a22 dg2 e2``. a11c and a22c are
+    x1, x2 : X_1, X_2, t : unit tangent (3-tuples or (3,) arrays). Returns (a11, a12, a22, a11c, a22c, e1, e2)
+    with e1, e2 3-tuples (values, not a work array: array views in this per-point function cost reference
+    counting): ``X_perp dgamma = (a11 dg1 + a12 dg2) e1 + a22 dg2 e2``. a11c and a22c are
     floored so that a_kk * Dgamma_k >= min(w_min, FLOOR_ARC_REL * arc * Dgamma_k) (the caustic floor); a11 and
     a22 are those floored again at min(w_fres, arc * cap_k) / Dgamma_k (w_fres: the incoherent map's Fresnel
     floor, m, 0 off; cap_k its cap, rad: BeamGrid.fresnel_k and fresnel_cap); without it a_kk = a_kkc.
@@ -235,13 +236,7 @@ def _transverse_basis(x1, x2, t, dg1, dg2, w_min, arc, w_fres, cap1, cap2, out):
             a11 *= min(math.ceil(wide1 / (a11 * dg1)), MAX_WIDEN)
         if a22 * dg2 < wide2:
             a22 *= min(math.ceil(wide2 / (a22 * dg2)), MAX_WIDEN)
-    out[0] = e0
-    out[1] = e1_
-    out[2] = e2_
-    out[3] = sgn * f0
-    out[4] = sgn * f1
-    out[5] = sgn * f2
-    return a11, a12, a22, a11c, a22c
+    return a11, a12, a22, a11c, a22c, (e0, e1_, e2_), (sgn * f0, sgn * f1, sgn * f2)
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -374,12 +369,13 @@ WORK_SIZE = POINT_SCRATCH + 3
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
-def point_beam_terms(grid, chord, px, py, pz, scratch, terms):
+def point_beam_terms(grid, chord, px, py, pz, terms):
     """The beam of ``chord`` (see :func:`deposit_chord`) at point (px, py, pz), written into ``terms`` (PB_*),
     nothing accumulated; False if the chord does not own the point or its hat weight is zero.
 
-    scratch : (POINT_SCRATCH,) work array; terms : (PB_SIZE,) out array (both caller-provided: no allocation,
-    so the device kernel calls this too)."""
+    terms : (PB_SIZE,) out array (caller-provided: no allocation, so the device kernel calls this too). The
+    foot's tangent, X_1, X_2 and the transverse basis are values, not slices of a work array: four slices per
+    point cost eight atomic reference-count updates, about a fifth of a beam job's trace (2026-12-04)."""
     sa = chord[0]
     sb = chord[1]
     launch_cos = chord[6]
@@ -391,35 +387,29 @@ def point_beam_terms(grid, chord, px, py, pz, scratch, terms):
         return False
     dg1 = grid.dgamma[0]
     dg2 = grid.dgamma[1]
-    basis = scratch[0:6]
-    x1 = scratch[6:9]
-    x2 = scratch[9:12]
-    tf = scratch[12:15]
     u = da / (da - db)
     v_ = 1.0 - u
-    tn = 0.0
-    for a in range(3):
-        tf[a] = v_ * sa[S_T + a] + u * sb[S_T + a]
-        tn += tf[a] * tf[a]
-    tn = math.sqrt(tn)
+    t0 = v_ * sa[S_T] + u * sb[S_T]
+    t1 = v_ * sa[S_T + 1] + u * sb[S_T + 1]
+    t2 = v_ * sa[S_T + 2] + u * sb[S_T + 2]
+    tn = math.sqrt(((0.0 + t0 * t0) + t1 * t1) + t2 * t2)
     q0 = px - (v_ * sa[S_X] + u * sb[S_X])
     q1 = py - (v_ * sa[S_X + 1] + u * sb[S_X + 1])
     q2 = pz - (v_ * sa[S_X + 2] + u * sb[S_X + 2])
-    for a in range(3):
-        tf[a] /= tn
-        x1[a] = v_ * sa[S_X1 + a] + u * sb[S_X1 + a]
-        x2[a] = v_ * sa[S_X2 + a] + u * sb[S_X2 + a]
+    tf = (t0 / tn, t1 / tn, t2 / tn)
+    x1 = (v_ * sa[S_X1] + u * sb[S_X1], v_ * sa[S_X1 + 1] + u * sb[S_X1 + 1], v_ * sa[S_X1 + 2] + u * sb[S_X1 + 2])
+    x2 = (v_ * sa[S_X2] + u * sb[S_X2], v_ * sa[S_X2 + 1] + u * sb[S_X2 + 1], v_ * sa[S_X2 + 2] + u * sb[S_X2 + 2])
     arc = v_ * sa[S_ARC] + u * sb[S_ARC]
     w_fres = math.sqrt(grid.fresnel_k * arc) if grid.fresnel_k > 0.0 else 0.0
-    a11, a12, a22, a11c, a22c = _transverse_basis(
-        x1, x2, tf, dg1, dg2, grid.w_min, arc, w_fres, grid.fresnel_cap[0], grid.fresnel_cap[1], basis
+    a11, a12, a22, a11c, a22c, e1, e2 = _transverse_basis(
+        x1, x2, tf, dg1, dg2, grid.w_min, arc, w_fres, grid.fresnel_cap[0], grid.fresnel_cap[1]
     )
     qa = q0 * tf[0] + q1 * tf[1] + q2 * tf[2]
     qp0 = q0 - qa * tf[0]
     qp1 = q1 - qa * tf[1]
     qp2 = q2 - qa * tf[2]
-    c1 = qp0 * basis[0] + qp1 * basis[1] + qp2 * basis[2]
-    c2 = qp0 * basis[3] + qp1 * basis[4] + qp2 * basis[5]
+    c1 = qp0 * e1[0] + qp1 * e1[1] + qp2 * e1[2]
+    c2 = qp0 * e2[0] + qp1 * e2[1] + qp2 * e2[2]
     g2 = c2 / a22
     g1 = (c1 - a12 * g2) / a11
     h1 = 1.0 - abs(g1) / dg1
@@ -522,7 +512,7 @@ def _accumulate(grid, acc, slot, amp_a, amp_b, group, kmah, v, terms):
 def _point_beam(grid, acc, slot, chord, px, py, pz, v, scratch, terms):
     """The beam of ``chord`` at point (px, py, pz) accumulated into point v of ``acc``; False if it does not own
     the point or its hat weight is zero. scratch, terms : work arrays of :func:`point_beam_terms`."""
-    if not point_beam_terms(grid, chord, px, py, pz, scratch, terms):
+    if not point_beam_terms(grid, chord, px, py, pz, terms):
         return False
     chord_amplitudes(chord)
     _accumulate(grid, acc, slot, chord[2], chord[3], chord[4], chord[5], v, terms)

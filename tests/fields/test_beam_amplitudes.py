@@ -132,7 +132,6 @@ def test_lazy_amplitudes_match_eager_brute_force() -> None:
     ref = _new_acc(grid, fg.n_points, 1)
     amp_a = np.zeros((2, FREQS.size))
     amp_b = np.zeros((2, FREQS.size))
-    scratch = np.zeros(beams.POINT_SCRATCH)
     terms = np.zeros(beams.PB_SIZE)
     nx, ny, nz = fg.shape
     pts = [
@@ -149,7 +148,7 @@ def test_lazy_amplitudes_match_eager_brute_force() -> None:
             group = beams.group_index(grid.n_refl, n_refl, 0)
             chord = (prev, rec, amp_a, amp_b, group, 0, launch_cos)
             for v, p in pts:
-                if not beams.point_beam_terms(grid, chord, p[0], p[1], p[2], scratch, terms):
+                if not beams.point_beam_terms(grid, chord, p[0], p[1], p[2], terms):
                     continue
                 w, u = terms[beams.PB_W], terms[beams.PB_U]
                 ref.weight[0, group, v] += w
