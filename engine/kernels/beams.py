@@ -241,10 +241,11 @@ def _transverse_basis(x1, x2, t, dg1, dg2, w_min, arc, w_fres, cap1, cap2):
 
 @nb.njit(**NJIT_FLAGS)
 def signed_tube(sample):
-    """det[X1, X2, T] of a sample record: its sign flips where the ray passes a caustic."""
-    x1 = sample[S_X1 : S_X1 + 3]
-    x2 = sample[S_X2 : S_X2 + 3]
-    t = sample[S_T : S_T + 3]
+    """det[X1, X2, T] of a sample record: its sign flips where the ray passes a caustic. (Values, not slices:
+    three slices per sample cost six atomic reference-count updates.)"""
+    x1 = (sample[S_X1], sample[S_X1 + 1], sample[S_X1 + 2])
+    x2 = (sample[S_X2], sample[S_X2 + 1], sample[S_X2 + 2])
+    t = (sample[S_T], sample[S_T + 1], sample[S_T + 2])
     return (
         x1[0] * (x2[1] * t[2] - x2[2] * t[1])
         - x1[1] * (x2[0] * t[2] - x2[2] * t[0])
@@ -770,8 +771,12 @@ def _sample_amplitude(tabs, sample, amp, refl_cos, refl_mat, amp0):
 def chord_amplitudes(chord):
     """Fill the amplitudes of both samples of a chord (deposit_chord's tuple) where not yet computed: called
     before a chord's first term is accumulated, so a chord that reaches no point costs no amplitude."""
-    _sample_amplitude(chord[7], chord[0], chord[2], chord[8], chord[9], chord[10])
-    _sample_amplitude(chord[7], chord[1], chord[3], chord[8], chord[9], chord[10])
+    # the test first, inline: once both are computed (nearly every point of a chord) no call and none of the
+    # reference counts of its six array arguments
+    if chord[0][S_AMP] == 0.0:
+        _sample_amplitude(chord[7], chord[0], chord[2], chord[8], chord[9], chord[10])
+    if chord[1][S_AMP] == 0.0:
+        _sample_amplitude(chord[7], chord[1], chord[3], chord[8], chord[9], chord[10])
 
 
 class Beam(NamedTuple):
@@ -844,9 +849,11 @@ def ray_sample(beam, slot, ray, x, tangent, time, arc, slow, par, refl, start_ne
         n_refl = refl[0]
         launch_cos = refl[3]
         kmah = ray.ist[1]
-        grid = beam.grid
-        tabs = beam.tabs
-        if grid.mode != BEAM_OFF and not chord_far(grid, ray.last, ray.cur):
+        # the grid and tables are bound only for a chord that may reach the grid (nine in ten do not): binding a
+        # tuple of arrays costs a reference-count update per array
+        if beam.grid.mode != BEAM_OFF and not chord_far(beam.grid, ray.last, ray.cur):
+            grid = beam.grid
+            tabs = beam.tabs
             group = chord_group(grid.n_refl, n_refl, kmah)
             chord = (
                 ray.last,
@@ -872,7 +879,7 @@ def ray_sample(beam, slot, ray, x, tangent, time, arc, slow, par, refl, start_ne
                 group,
                 kmah,
                 launch_cos,
-                tabs,
+                beam.tabs,
                 refl[1],
                 refl[2],
                 ray.amp0,
