@@ -148,7 +148,8 @@ _I_SIZE = 13
 
 @nb.njit(**NJIT_FLAGS)
 def _lane_start(ray, x_start, d_start, cell, fs, ist):
-    """Load ray ``ray`` into one lane's state rows fs (_F_SIZE,), ist (_I_SIZE,) as trace_one_lean starts it."""
+    """Load ray ``ray`` into one lane's state rows fs (_F_SIZE,), ist (_I_SIZE,) as the generic walk starts it
+    (unit direction, zero time and length, no entry face; lost at once without a start cell)."""
     norm = math.sqrt(d_start[0] * d_start[0] + d_start[1] * d_start[1] + d_start[2] * d_start[2])
     for i in range(3):
         fs[_F_X + i] = x_start[i]
@@ -203,16 +204,16 @@ def _lane_take(lane, next_ray, hi, rays_in, rays_out, fst, ist):
 def trace_block_lanes(packed, mesh, c_ref, limits, origins, directions, cells, out_state, out_counts, lo, hi):
     """Trace rays lo..hi-1 in ``lanes`` interleaved lanes on packed cell records (mesh/packed.py).
 
-    The walk of :func:`trace_one_lean`, one segment step of one ray at a time, taking the lanes in turn:
-    when a ray's exit face is known its next cell's record is prefetched (``prefetch`` > 0) and the other
+    The generic walk (traverse.trace_one) for the plain parabolic trace, one segment step of one ray at a time,
+    taking the lanes in turn: when a ray's exit face is known its next cell's record is prefetched (``prefetch`` > 0) and the other
     lanes' steps run while it arrives, so the walk waits on memory far less than one ray alone, which knows
-    its next cell only at the end of each step. Every lane does trace_one_lean's arithmetic on the same
-    numbers (the records are exact copies), so the final states are bit-identical to it and to the generic
-    kernel for any number of lanes. The rare events (nudges, slides, walks) read the mesh's own arrays.
+    its next cell only at the end of each step. Every lane does the generic walk's arithmetic on the same
+    numbers (the records are exact copies), so the final states are bit-identical to the generic kernel's
+    for any number of lanes. The rare events (nudges, slides, walks) read the mesh's own arrays.
 
     packed : PackedCells; mesh : CellMesh; c_ref : m/s; limits : (max_time s, max_reflections, max_steps,
     prefetch 0 | 1, lanes >= 1). origins, directions (n, 3), cells (n,), out_state (n, STATE_SIZE),
-    out_counts (n, COUNT_SIZE) as in trace_block_lean.
+    out_counts (n, COUNT_SIZE): inputs, and the generic kernel's output columns (constants.STATE_* / COUNT_*).
     """
     max_time, max_reflections, max_steps, prefetch, lanes = limits
     rec = packed.rec
@@ -263,7 +264,7 @@ def trace_block_lanes(packed, mesh, c_ref, limits, origins, directions, cells, o
             pp_run = ist[lane, _I_PP]
             steps = ist[lane, _I_STEPS]
             status = STATUS_RUNNING
-            # ---- one step of trace_one_lean's loop ('break' there: status set here; 'continue': step ends)
+            # ---- one step of the walk's loop (its 'break': status set here; its 'continue': the step ends)
             while True:
                 if steps >= max_steps:
                     status = STATUS_STEP_LIMIT
