@@ -150,6 +150,22 @@ def test_packed_records_copy_the_mesh_exactly_on_cache_lines(slabs) -> None:
     assert packed_cells(sc_mesh) is packed_cells(sc_mesh)  # built once per mesh
 
 
+def test_packed_records_go_with_their_mesh() -> None:
+    """A worker keeps no records of a finished job's mesh: the cache entry goes when the mesh's planes do."""
+    import gc
+
+    from bentray.engine.bench.breakdown import _stratified_scene
+    from bentray.engine.mesh import packed
+
+    sc = _stratified_scene(10)
+    key = id(sc.mesh.planes)
+    packed.packed_cells(sc.mesh)
+    assert key in packed._CACHE
+    del sc
+    gc.collect()
+    assert key not in packed._CACHE
+
+
 def test_auto_picks_the_lean_kernel_only_for_the_plain_parabolic_trace() -> None:
     assert lean_applies("parabolic", 0, None, 0, False, False)
     assert not lean_applies("circular", 0, None, 0, False, False)
