@@ -207,9 +207,10 @@ def trace_block_lanes(packed, mesh, c_ref, limits, origins, directions, cells, o
     The generic walk (traverse.trace_one) for the plain parabolic trace, one segment step of one ray at a time,
     taking the lanes in turn: when a ray's exit face is known its next cell's record is prefetched
     (``prefetch`` > 0) and the other lanes' steps run while it arrives, so the walk waits on memory far less
-    than one ray alone, which knows its next cell only at the end of each step. Every lane does the generic walk's arithmetic on the same
-    numbers (the records are exact copies), so the final states are bit-identical to the generic kernel's
-    for any number of lanes. The rare events (nudges, slides, walks) read the mesh's own arrays.
+    than one ray alone, which knows its next cell only at the end of each step. Every lane does the generic
+    walk's arithmetic on the same numbers (the records are exact copies), so the final states are
+    bit-identical to the generic kernel's for any number of lanes. The rare events (nudges, slides, walks)
+    read the mesh's own arrays.
 
     packed : PackedCells; mesh : CellMesh; c_ref : m/s; limits : (max_time s, max_reflections, max_steps,
     prefetch 0 | 1, lanes >= 1). origins, directions (n, 3), cells (n,), out_state (n, STATE_SIZE),
