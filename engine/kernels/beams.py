@@ -364,7 +364,8 @@ PB_TAU = 3
 PB_AMP = 4
 PB_NEAR = 5  # the hat of the ray's own tube at the point (h1 h2 of the unwidened tube; = w without widening)
 PB_SIZE = 6
-POINT_SCRATCH = 15  # work array of point_beam_terms (transverse basis, X1, X2 and the tangent at the foot)
+POINT_SCRATCH = 15  # offset of the mirrored point in BeamRay.work (its first 15 slots held point_beam_terms'
+# basis, X1, X2 and tangent until 2026-12-04, now values; the offset is kept for the device kernel's scratch rows)
 # BeamRay.work holds POINT_SCRATCH + 3: the last three hold a mirrored point (deposit_chord's ground images)
 WORK_SIZE = POINT_SCRATCH + 3
 
