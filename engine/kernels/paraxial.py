@@ -330,7 +330,7 @@ def _eff_variation(point, g_cell, dy, cos_d):
 
 
 @nb.njit(**NJIT_FLAGS)
-def wind_terms(curve, c_ref, wind, cell_model, x, d, par, seg, work):
+def wind_terms(curve, c_ref, wind, cell_model, x, d, par, seg):
     """The segment record with wind (after tangent_derivs): d m0/dgamma_k and d g/dgamma_k of the effective
     medium the traversal sets the segment up with (its value at x, its gradient at the chord middle), in
     closed form (_eff_variation: the wind speed's exact Hessian).
@@ -343,8 +343,8 @@ def wind_terms(curve, c_ref, wind, cell_model, x, d, par, seg, work):
     (four effective-medium evaluations per launch angle); they remain the test oracle
     (tests/reference/wind_fd.py), which this agrees with to their truncation (docs/physics.md §10). The wind
     speed and its Hessian are evaluated once at x and once at the chord middle for both launch angles, and
-    the loop makes no array views (each costs two atomic reference-count updates). work : unused (kept for
-    the record's callers).
+    the loop makes no array views (each costs two atomic reference-count updates). cell_model's cell_size
+    serves only the oracle's step.
     """
     code, params, e = wind
     m_x, g_cell, planes, neighbours, cell_size, mid_ok, x_mid = cell_model

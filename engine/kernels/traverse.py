@@ -541,7 +541,6 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
                     d,
                     par,
                     seg,
-                    pwork,
                 )
             paraxial.finish_terms(par, g, seg)
             if deposit_on:  # beams: each cell's wind gradient taken as fixed (docs/physics.md §11)

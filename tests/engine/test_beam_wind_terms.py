@@ -118,7 +118,7 @@ def test_closed_form_wind_terms_with_the_chord_middle_match_the_central_differen
             wind_fd.wind_terms(cc, C_REF, (code, params, e), model, x, d, par, seg, np.zeros(21))
             fd.append(seg)
         seg_fd = (4.0 * fd[1] - fd[0]) / 3.0
-        paraxial.wind_terms(cc, C_REF, (code, params, e), model, x, d, par, seg_cf, np.zeros(21))
+        paraxial.wind_terms(cc, C_REF, (code, params, e), model, x, d, par, seg_cf)
         scale_m = np.abs(g_cell).max() * np.abs(par[:6]).max() + 1e-6 * abs(m_raw)
         worst_m = max(worst_m, float(np.max(np.abs(seg_cf[6:8] - seg_fd[6:8])) / scale_m))
         scale_g = max(np.abs(seg_fd[8:14]).max(), np.abs(seg_cf[8:14]).max()) + 1e-3 * np.abs(g_cell).max()
