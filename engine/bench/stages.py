@@ -5,8 +5,9 @@
 Runs the job's stages in order in this process (as :func:`bentray.engine.run.run_prepared` does, writing
 nothing) and prints one row per stage: wall seconds, CPU seconds of this process (all threads) and the
 Numba compilation inside the stage. The trace runs three times per round on the same mesh and rays: with the
-job's beam field, with the same field moved 100 km up (the rays carry their paraxial derivatives and are cut
-into chord samples, but no chord reaches a point) and without a field. ``field (difference)`` is what the
+job's beam field, with the same field moved 1000 km sideways (the rays carry their paraxial derivatives and are cut
+into chord samples, but no chord reaches the grid's columns: until 2026-12-04 it was moved 100 km up, which left
+every chord's column search running) and without a field. ``field (difference)`` is what the
 field costs in all; ``deposits (difference)`` what the deposits themselves cost (engine/kernels/beams.py:
 the chord search, each point's beam, the per-band terms and the amplitudes, computed on a chord's first
 deposit). Rounds are interleaved; the table keeps each stage's best round. CPU seconds are the
@@ -121,12 +122,12 @@ def stage_table(job_file: Path, rounds: int = 2, save: Path | None = None) -> di
         cells = stages.stage_locate(j, media, surfaces, fan.source, log)
         setup = stages.stage_field_setup(j, profile, media.mesh, surfaces, fan.source, log)
         plan = stages.build_plan(j, profile, wind, fan, cells, setup)
-        if name == "trace (field elsewhere)":  # the same field 100 km up: samples and paraxial rays, no deposit
+        if name == "trace (field elsewhere)":  # the same field 1000 km away: samples and paraxial rays, no search
             from bentray.engine.beam_field import BeamBuffers
 
             assert isinstance(plan.field, BeamBuffers), "the job has no beam field"
             bg = plan.field.bgrid
-            plan.field.bgrid = bg._replace(origin=bg.origin + np.array([0.0, 0.0, 1e5]))
+            plan.field.bgrid = bg._replace(origin=bg.origin + np.array([1e6, 0.0, 0.0]))
         plans[name] = (j, plan, fan, setup)
     traced = None
     for _ in range(rounds):

@@ -107,7 +107,8 @@ def _deposit_chord_atomic(grid, acc, chord, scratch, terms):
 
 @cuda.jit(device=True)
 def _deposit_mirrored_atomic(grid, acc, chord, scratch, terms):
-    """``beams._deposit_mirrored`` with atomic accumulation (same images, same terms)."""
+    """The images of ``beams.deposit_chord`` (points near the ground, mirrored through its plane) with atomic
+    accumulation (the same images and terms; every image tested, not the CPU's narrowed index range)."""
     i0, i1, j0, j1, z_lo, z_hi = beams.chord_box(grid, chord[0], chord[1])
     if i0 > i1 or j0 > j1:
         return 0

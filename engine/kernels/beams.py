@@ -26,9 +26,12 @@ deficit where a group's neighbouring rays have already reflected (near the groun
 and fades the field to zero within one beam width of a fan edge or a geometric shadow boundary.
 
 Accumulators are per thread slot (``slot``): no shared writes; the wrapper sums the slots in order. Each point's
-beam is computed by :func:`point_beam_terms` (pure: caller-provided work arrays, nothing accumulated) and added by
-:func:`_accumulate` (``+=`` into the slot); the CUDA kernel adds the same terms into one accumulator with atomics
-(engine/gpu/beam_device.py). Nothing a kernel calls here allocates (the work arrays live in :class:`BeamRay`).
+beam is computed by :func:`point_beam` (pure, values in and out: the chord's samples and the grid's constants are
+bound once per chord as tuples of values) and added with ``+=`` into the slot by :func:`deposit_chord`;
+:func:`point_beam_terms` writes the same terms into a work array for the receivers' path and the CUDA kernel,
+which adds them into one accumulator with atomics (engine/gpu/beam_device.py). A chord's candidate points are
+the columns of its box, narrowed to the indices between its end planes (:func:`_slab_k_range`,
+:func:`_image_k_range`). Nothing a kernel calls here allocates (the work arrays live in :class:`BeamRay`).
 """
 
 from __future__ import annotations
@@ -371,41 +374,67 @@ WORK_SIZE = POINT_SCRATCH + 3
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
-def point_beam_terms(grid, chord, px, py, pz, terms):
-    """The beam of ``chord`` (see :func:`deposit_chord`) at point (px, py, pz), written into ``terms`` (PB_*),
-    nothing accumulated; False if the chord does not own the point or its hat weight is zero.
+def sample_values(s):
+    """The SAMPLE_SIZE floats of a sample record as a tuple (read once per chord: the per-point code then indexes
+    a tuple of values, which costs no reference counting, instead of an array bound in a loop)."""
+    # fmt: off
+    return (s[0], s[1], s[2], s[3], s[4], s[5], s[6], s[7], s[8], s[9], s[10], s[11],
+            s[12], s[13], s[14], s[15], s[16], s[17], s[18], s[19], s[20], s[21], s[22], s[23])
+    # fmt: on
 
-    terms : (PB_SIZE,) out array (caller-provided: no allocation, so the device kernel calls this too). The
-    foot's tangent, X_1, X_2 and the transverse basis are values, not slices of a work array: four slices per
-    point cost eight atomic reference-count updates, about a fifth of a beam job's trace (2026-12-04)."""
-    sa = chord[0]
-    sb = chord[1]
-    launch_cos = chord[6]
-    da = (px - sa[S_X]) * sa[S_T] + (py - sa[S_X + 1]) * sa[S_T + 1] + (pz - sa[S_X + 2]) * sa[S_T + 2]
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def grid_values(grid):
+    """The scalars of a BeamGrid that a point's beam needs, as a tuple (read once per chord):
+    (dgamma_el, dgamma_az, w_min, fresnel_k, fresnel_cap_el, fresnel_cap_az, c_ref, mode)."""
+    return (
+        grid.dgamma[0],
+        grid.dgamma[1],
+        grid.w_min,
+        grid.fresnel_k,
+        grid.fresnel_cap[0],
+        grid.fresnel_cap[1],
+        grid.c_ref,
+        grid.mode,
+    )
+
+
+# point_beam's answer for a point the chord does not own
+_NO_BEAM = (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def point_beam(ta, tb, gc, launch_cos, px, py, pz):
+    """The beam of the chord from sample ``ta`` to ``tb`` at point (px, py, pz), nothing accumulated.
+
+    ta, tb : sample records as tuples (:func:`sample_values`); gc : :func:`grid_values`; launch_cos : cos of
+    the launch elevation. Returns (owned, w, rel_i, u, tau, amp, near): whether the chord owns the point with a
+    non-zero hat weight, then the PB_* terms (tau, amp only in the coherent modes, else 0). Values only: this runs
+    for every candidate point of a chord, and arrays bound here would cost reference counting per point.
+    """
+    da = (px - ta[S_X]) * ta[S_T] + (py - ta[S_X + 1]) * ta[S_T + 1] + (pz - ta[S_X + 2]) * ta[S_T + 2]
     if da < 0.0:
-        return False
-    db = (px - sb[S_X]) * sb[S_T] + (py - sb[S_X + 1]) * sb[S_T + 1] + (pz - sb[S_X + 2]) * sb[S_T + 2]
+        return _NO_BEAM
+    db = (px - tb[S_X]) * tb[S_T] + (py - tb[S_X + 1]) * tb[S_T + 1] + (pz - tb[S_X + 2]) * tb[S_T + 2]
     if db >= 0.0:
-        return False
-    dg1 = grid.dgamma[0]
-    dg2 = grid.dgamma[1]
+        return _NO_BEAM
+    dg1 = gc[0]
+    dg2 = gc[1]
     u = da / (da - db)
     v_ = 1.0 - u
-    t0 = v_ * sa[S_T] + u * sb[S_T]
-    t1 = v_ * sa[S_T + 1] + u * sb[S_T + 1]
-    t2 = v_ * sa[S_T + 2] + u * sb[S_T + 2]
+    t0 = v_ * ta[S_T] + u * tb[S_T]
+    t1 = v_ * ta[S_T + 1] + u * tb[S_T + 1]
+    t2 = v_ * ta[S_T + 2] + u * tb[S_T + 2]
     tn = math.sqrt(((0.0 + t0 * t0) + t1 * t1) + t2 * t2)
-    q0 = px - (v_ * sa[S_X] + u * sb[S_X])
-    q1 = py - (v_ * sa[S_X + 1] + u * sb[S_X + 1])
-    q2 = pz - (v_ * sa[S_X + 2] + u * sb[S_X + 2])
+    q0 = px - (v_ * ta[S_X] + u * tb[S_X])
+    q1 = py - (v_ * ta[S_X + 1] + u * tb[S_X + 1])
+    q2 = pz - (v_ * ta[S_X + 2] + u * tb[S_X + 2])
     tf = (t0 / tn, t1 / tn, t2 / tn)
-    x1 = (v_ * sa[S_X1] + u * sb[S_X1], v_ * sa[S_X1 + 1] + u * sb[S_X1 + 1], v_ * sa[S_X1 + 2] + u * sb[S_X1 + 2])
-    x2 = (v_ * sa[S_X2] + u * sb[S_X2], v_ * sa[S_X2 + 1] + u * sb[S_X2 + 1], v_ * sa[S_X2 + 2] + u * sb[S_X2 + 2])
-    arc = v_ * sa[S_ARC] + u * sb[S_ARC]
-    w_fres = math.sqrt(grid.fresnel_k * arc) if grid.fresnel_k > 0.0 else 0.0
-    a11, a12, a22, a11c, a22c, e1, e2 = _transverse_basis(
-        x1, x2, tf, dg1, dg2, grid.w_min, arc, w_fres, grid.fresnel_cap[0], grid.fresnel_cap[1]
-    )
+    x1 = (v_ * ta[S_X1] + u * tb[S_X1], v_ * ta[S_X1 + 1] + u * tb[S_X1 + 1], v_ * ta[S_X1 + 2] + u * tb[S_X1 + 2])
+    x2 = (v_ * ta[S_X2] + u * tb[S_X2], v_ * ta[S_X2 + 1] + u * tb[S_X2 + 1], v_ * ta[S_X2 + 2] + u * tb[S_X2 + 2])
+    arc = v_ * ta[S_ARC] + u * tb[S_ARC]
+    w_fres = math.sqrt(gc[3] * arc) if gc[3] > 0.0 else 0.0
+    a11, a12, a22, a11c, a22c, e1, e2 = _transverse_basis(x1, x2, tf, dg1, dg2, gc[2], arc, w_fres, gc[4], gc[5])
     qa = q0 * tf[0] + q1 * tf[1] + q2 * tf[2]
     qp0 = q0 - qa * tf[0]
     qp1 = q1 - qa * tf[1]
@@ -416,10 +445,10 @@ def point_beam_terms(grid, chord, px, py, pz, terms):
     g1 = (c1 - a12 * g2) / a11
     h1 = 1.0 - abs(g1) / dg1
     if h1 <= 0.0:
-        return False
+        return _NO_BEAM
     h2 = 1.0 - abs(g2) / dg2
     if h2 <= 0.0:
-        return False
+        return _NO_BEAM
     # w: the hat's share of a partition of unity, h1 h2 (a11c a22c) / (a11 a22) for a hat widened by the Fresnel
     # floor (h1 h2 without it); rel_i: the tube's intensity. Then w rel_i = h1 h2 launch_cos / (a11 a22) spreads
     # the ray's energy over the widened footprint while sum w still measures how fully rays cover the point.
@@ -431,26 +460,35 @@ def point_beam_terms(grid, chord, px, py, pz, terms):
         g1c = (c1 - a12 * g2c) / a11c
         near = max(1.0 - abs(g1c) / dg1, 0.0) * max(1.0 - abs(g2c) / dg2, 0.0)
     rel_i = launch_cos / (a11c * a22c)
+    tau = 0.0
+    amp = 0.0
+    if gc[7] != BEAM_INCOHERENT:
+        # travel time to the point: foot time, along-tangent offset, wavefront curvature
+        pd_0 = (v_ * ta[S_P1] + u * tb[S_P1]) * g1 + (v_ * ta[S_P2] + u * tb[S_P2]) * g2
+        pd_1 = (v_ * ta[S_P1 + 1] + u * tb[S_P1 + 1]) * g1 + (v_ * ta[S_P2 + 1] + u * tb[S_P2 + 1]) * g2
+        pd_2 = (v_ * ta[S_P1 + 2] + u * tb[S_P1 + 2]) * g1 + (v_ * ta[S_P2 + 2] + u * tb[S_P2 + 2]) * g2
+        pd0 = ((0.0 + qp0 * pd_0) + qp1 * pd_1) + qp2 * pd_2
+        tau = v_ * ta[S_TIME] + u * tb[S_TIME] + qa * (v_ * ta[S_SLOW] + u * tb[S_SLOW]) + 0.5 * pd0 / gc[6]
+        amp = w * math.sqrt(rel_i)
+    return True, w, rel_i, u, tau, amp, near
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def point_beam_terms(grid, chord, px, py, pz, terms):
+    """:func:`point_beam` of ``chord`` (see :func:`deposit_chord`) at point (px, py, pz), written into ``terms``
+    (PB_*); False if the chord does not own the point or its hat weight is zero. terms : (PB_SIZE,) out array
+    (caller-provided: no allocation, so the device kernel calls this too)."""
+    owned, w, rel_i, u, tau, amp, near = point_beam(
+        sample_values(chord[0]), sample_values(chord[1]), grid_values(grid), chord[6], px, py, pz
+    )
+    if not owned:
+        return False
     terms[PB_W] = w
     terms[PB_REL_I] = rel_i
     terms[PB_U] = u
-    terms[PB_TAU] = 0.0
-    terms[PB_AMP] = 0.0
+    terms[PB_TAU] = tau
+    terms[PB_AMP] = amp
     terms[PB_NEAR] = near
-    if grid.mode != BEAM_INCOHERENT:
-        # travel time to the point: foot time, along-tangent offset, wavefront curvature
-        pd0 = 0.0
-        for a in range(3):
-            pd = (v_ * sa[S_P1 + a] + u * sb[S_P1 + a]) * g1 + (v_ * sa[S_P2 + a] + u * sb[S_P2 + a]) * g2
-            if a == 0:
-                pd0 += qp0 * pd
-            elif a == 1:
-                pd0 += qp1 * pd
-            else:
-                pd0 += qp2 * pd
-        tau = v_ * sa[S_TIME] + u * sb[S_TIME] + qa * (v_ * sa[S_SLOW] + u * sb[S_SLOW]) + 0.5 * pd0 / grid.c_ref
-        terms[PB_TAU] = tau
-        terms[PB_AMP] = w * math.sqrt(rel_i)
     return True
 
 
@@ -563,67 +601,219 @@ def chord_box(grid, sa, sb):
     return i0, i1, j0, j1, z_lo, z_hi
 
 
+# Plane-distance margin (m) of the chords' candidate ranges: a candidate is dropped only where its distance to an end
+# plane is past the plane by more than this; point_beam's own test rounds by ~1e-13 m on km domains.
+SLAB_TOL_M = 1e-6
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _plane_k_range(a0, ak, b0, bk, k0, k1):
+    """The part of the index range [k0, k1] of candidates r_k = r_0 + k step that may lie between a chord's end
+    planes, given a0 = (r_0 - x_a).T_a, ak = step.T_a, b0 = (r_0 - x_b).T_b, bk = step.T_b (both distances linear
+    in k); (1, 0) when empty. Conservative: an index is dropped only where its near-plane distance is below
+    -SLAB_TOL_M or its far-plane distance at least +SLAB_TOL_M, with one index of slack each way; non-finite
+    input prunes nothing (point_beam decides)."""
+    if not (math.isfinite(a0) and math.isfinite(b0) and math.isfinite(ak) and math.isfinite(bk)):
+        return k0, k1
+    tol = SLAB_TOL_M
+    lo = float(k0)
+    hi = float(k1)
+    # a0 + ak k >= -tol (bounds as floats: np.floor / np.ceil keep an overflow to +-inf a float)
+    if ak > 0.0:
+        lo = max(lo, np.floor((-tol - a0) / ak) - 1.0)
+    elif ak < 0.0:
+        hi = min(hi, np.ceil((-tol - a0) / ak) + 1.0)
+    elif a0 < -tol:
+        return 1, 0
+    # b0 + bk k < tol
+    if bk > 0.0:
+        hi = min(hi, np.ceil((tol - b0) / bk) + 1.0)
+    elif bk < 0.0:
+        lo = max(lo, np.floor((tol - b0) / bk) - 1.0)
+    elif b0 >= tol:
+        return 1, 0
+    if not (lo <= hi):
+        return 1, 0
+    return int(lo), int(hi)
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _slab_k_range(ta, tb, r0, step, k0, k1):
+    """:func:`_plane_k_range` of the candidates r0 + k step (3-tuples, m) for the chord from ta to tb (tuples of
+    :func:`sample_values`)."""
+    a0 = (r0[0] - ta[S_X]) * ta[S_T] + (r0[1] - ta[S_X + 1]) * ta[S_T + 1] + (r0[2] - ta[S_X + 2]) * ta[S_T + 2]
+    b0 = (r0[0] - tb[S_X]) * tb[S_T] + (r0[1] - tb[S_X + 1]) * tb[S_T + 1] + (r0[2] - tb[S_X + 2]) * tb[S_T + 2]
+    ak = step[0] * ta[S_T] + step[1] * ta[S_T + 1] + step[2] * ta[S_T + 2]
+    bk = step[0] * tb[S_T] + step[1] * tb[S_T + 1] + step[2] * tb[S_T + 2]
+    return _plane_k_range(a0, ak, b0, bk, k0, k1)
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _image_k_range(ta, tb, px, py, zo, dz, nz, m, reach):
+    """Indices k of the column's points (px, py, zo + k dz) whose ground images can be deposited: those at most
+    ``reach`` above the mirror plane m = (n, d) (h = n.r - d in [0, reach]) and whose image can lie between the
+    chord's end planes; (1, 0) when none; (0, nz - 1) (no pruning) where the plane is too steep to invert (n_z dz
+    below 1e-9 m). The images are linear in k: r_k - 2 h_k n with h_k = h_0 + n_z dz k. Conservative, as
+    :func:`_plane_k_range` (one index of slack on the height band as well)."""
+    hk = m[2] * dz
+    if not (hk > 1e-9):
+        return 0, nz - 1
+    h0 = m[0] * px + m[1] * py + m[2] * zo - m[3]
+    if not math.isfinite(h0):
+        return 0, nz - 1
+    lo = max(0.0, np.ceil(-h0 / hk) - 1.0)
+    hi = min(float(nz - 1), np.floor((reach - h0) / hk) + 1.0)
+    if not (lo <= hi):
+        return 1, 0
+    r0 = (px - 2.0 * h0 * m[0], py - 2.0 * h0 * m[1], zo - 2.0 * h0 * m[2])
+    step = (-2.0 * hk * m[0], -2.0 * hk * m[1], dz - 2.0 * hk * m[2])
+    return _slab_k_range(ta, tb, r0, step, int(lo), int(hi))
+
+
 @nb.njit(**NJIT_FLAGS)
 def deposit_chord(grid, acc, slot, chord, scratch, terms):
-    """Add the beam of the chord from sample ``sa`` to sample ``sb`` to every grid point it owns.
+    """Add the beam of the chord from sample ``sa`` to sample ``sb`` to every grid point it owns, and, where the
+    grid has mirror planes (BeamGrid.mirror), its beam at the ground images of the points near the ground to the
+    points themselves: the kernel mass a floored beam spreads below the ground comes back (docs/physics.md §11).
 
     chord : tuple (sa, sb, amp_a, amp_b, group, kmah, launch_cos, tabs, refl_cos, refl_mat, amp0): sa, sb
     (SAMPLE_SIZE,) sample records; amp_a, amp_b (2, F) complex amplitude factor per band at the two samples
     (reflection coefficients, absorption; re in row 0, im in row 1), filled on the chord's first deposit from
     tabs, refl_cos, refl_mat and amp0 (:func:`chord_amplitudes`); group, the arrival group of the chord; kmah,
     caustics passed (the amplitude turns by (-i)^kmah, time factor exp(-i w t)); launch_cos, cos(launch
-    elevation) (I / I_1m = launch_cos / J). scratch (POINT_SCRATCH,), terms (PB_SIZE,) : the caller's work arrays.
-    Returns the number of grid points that received a contribution.
+    elevation) (I / I_1m = launch_cos / J). scratch, terms : unused (the device kernel's work arrays).
+    Returns the number of contributions added.
+
+    Search: the chord's box of columns (:func:`chord_box`; for images one column wider each way, since an image
+    moves sideways by 2 h sin(slope)); in each column the points between the chord's end planes
+    (:func:`_slab_k_range`), then the column's images (points at most the chord's reach above the ground plane,
+    whose image lies in the box's height range). Per column the points come first, then the images: each point
+    receives its direct term before its image's, as when all points preceded all images.
+
+    Everything a point needs is bound once per chord (the samples and grid constants as tuples of values, the
+    accumulator arrays as locals): the per-point code binds no array, so it costs no reference counting.
     """
-    i0, i1, j0, j1, z_lo, z_hi = chord_box(grid, chord[0], chord[1])
-    ny = grid.shape[1]
-    nz = grid.shape[2]
-    count = 0
-    for i in range(i0, i1 + 1):
-        px = grid.origin[0] + i * grid.spacing[0]
-        for j in range(j0, j1 + 1):
-            py = grid.origin[1] + j * grid.spacing[1]
-            zo = grid.origin[2] + grid.z_offset[i, j]
-            k0, k1 = _index_range(z_lo, z_hi, zo, grid.spacing[2], nz)
-            for k in range(k0, k1 + 1):
-                v = (i * ny + j) * nz + k
-                if _point_beam(grid, acc, slot, chord, px, py, zo + k * grid.spacing[2], v, scratch, terms):
-                    count += 1
-    if grid.mirror.shape[0] > 0:
-        count += _deposit_mirrored(grid, acc, slot, chord, scratch, terms)
-    return count
-
-
-@nb.njit(**NJIT_FLAGS)
-def _deposit_mirrored(grid, acc, slot, chord, scratch, terms):
-    """The chord's beam at the ground images of the grid points near the ground (BeamGrid.mirror), added to the
-    points themselves: the kernel mass a floored beam spreads below the ground comes back (docs/physics.md §11).
-    The column box is the chord's, one column wider each way (an image moves sideways by 2 h sin(slope))."""
-    i0, i1, j0, j1, z_lo, z_hi = chord_box(grid, chord[0], chord[1])
+    sa = chord[0]
+    sb = chord[1]
+    i0, i1, j0, j1, z_lo, z_hi = chord_box(grid, sa, sb)
     if i0 > i1 or j0 > j1:
         return 0
+    ta = sample_values(sa)
+    tb = sample_values(sb)
+    gc = grid_values(grid)
+    launch_cos = chord[6]
+    group = chord[4]
+    kmah = chord[5]
+    amp_a = chord[2]
+    amp_b = chord[3]
+    mode = grid.mode
+    omega = grid.omega
+    n_f = omega.shape[0]
+    z_offset = grid.z_offset
+    mirror = grid.mirror
+    ox = grid.origin[0]
+    oy = grid.origin[1]
+    oz = grid.origin[2]
+    sx = grid.spacing[0]
+    sy = grid.spacing[1]
+    dz = grid.spacing[2]
     nx = grid.shape[0]
     ny = grid.shape[1]
     nz = grid.shape[2]
+    weight = acc.weight
+    hits = acc.hits
+    energy = acc.energy
+    near_w = acc.near_w
+    near_amp = acc.near_amp
+    s_re = acc.s_re
+    s_im = acc.s_im
+    has_near = near_w.shape[0] > 0
+    mirrored = mirror.shape[0] > 0
     reach = 0.5 * (z_hi - z_lo)  # at least the chord's transverse reach
-    img = scratch[POINT_SCRATCH : POINT_SCRATCH + 3]
+    ci0, ci1, cj0, cj1 = i0, i1, j0, j1
+    if mirrored:
+        ci0, ci1, cj0, cj1 = max(i0 - 1, 0), min(i1 + 1, nx - 1), max(j0 - 1, 0), min(j1 + 1, ny - 1)
+    amps_ready = False
     count = 0
-    for i in range(max(i0 - 1, 0), min(i1 + 1, nx - 1) + 1):
-        px = grid.origin[0] + i * grid.spacing[0]
-        for j in range(max(j0 - 1, 0), min(j1 + 1, ny - 1) + 1):
-            py = grid.origin[1] + j * grid.spacing[1]
-            zo = grid.origin[2] + grid.z_offset[i, j]
-            for k in range(nz):
-                pz = zo + k * grid.spacing[2]
-                if not mirror_point(grid, i, j, px, py, pz, reach, img):
-                    if pz > zo + 2.0 * reach + grid.spacing[2]:
+    for i in range(ci0, ci1 + 1):
+        px = ox + i * sx
+        for j in range(cj0, cj1 + 1):
+            py = oy + j * sy
+            zo = oz + z_offset[i, j]
+            k0, k1 = 1, 0
+            if i0 <= i <= i1 and j0 <= j <= j1:
+                k0, k1 = _index_range(z_lo, z_hi, zo, dz, nz)
+                if k0 <= k1:
+                    k0, k1 = _slab_k_range(ta, tb, (px, py, zo), (0.0, 0.0, dz), k0, k1)
+            m0 = m1 = m2 = m3 = 0.0
+            n0, n1 = 1, 0  # the images' index range
+            if mirrored:
+                m0 = mirror[i, j, 0]
+                m1 = mirror[i, j, 1]
+                m2 = mirror[i, j, 2]
+                m3 = mirror[i, j, 3]
+                n0, n1 = _image_k_range(ta, tb, px, py, zo, dz, nz, (m0, m1, m2, m3), reach)
+            # the column's candidates: points k0..k1 (image False), then images n0..n1 (image True), each image
+            # tested as beams.mirror_point does (its index range only skips images that cannot be deposited)
+            image = k0 > k1
+            k = n0 if image else k0
+            while True:
+                if image:
+                    if k > n1:
                         break
-                    continue
-                if img[2] < z_lo or img[2] > z_hi:
-                    continue
+                    pz = zo + k * dz
+                    h = m0 * px + m1 * py + m2 * pz - m3  # beams.mirror_point
+                    if h < 0.0 or h > reach:
+                        if pz > zo + 2.0 * reach + dz:
+                            break
+                        k += 1
+                        continue
+                    qx = px - 2.0 * h * m0
+                    qy = py - 2.0 * h * m1
+                    qz = pz - 2.0 * h * m2
+                    if qz < z_lo or qz > z_hi:
+                        k += 1
+                        continue
+                else:
+                    qx = px
+                    qy = py
+                    qz = zo + k * dz
                 v = (i * ny + j) * nz + k
-                if _point_beam(grid, acc, slot, chord, img[0], img[1], img[2], v, scratch, terms):
-                    count += 1
+                if not image and k == k1:
+                    image = True
+                    k = n0
+                else:
+                    k += 1
+                owned, w, rel_i, u, tau, amp, near = point_beam(ta, tb, gc, launch_cos, qx, qy, qz)
+                if not owned:
+                    continue
+                if not amps_ready:
+                    chord_amplitudes(chord)
+                    amps_ready = True
+                count += 1
+                # beams._accumulate, with the arrays bound above
+                weight[slot, group, v] += w
+                hits[slot, v] += 1.0
+                if mode != BEAM_COHERENT:
+                    for f in range(n_f):
+                        energy[slot, group, f, v] += band_energy(
+                            amp_a[0, f], amp_a[1, f], amp_b[0, f], amp_b[1, f], u, w, rel_i
+                        )
+                    if has_near:
+                        near_w[slot, 0, group, v] += near
+                        near_w[slot, 1, group, v] += w * rel_i
+                        if near > 0.0:
+                            for f in range(n_f):
+                                near_amp[slot, group, f, v] += band_energy(
+                                    amp_a[0, f], amp_a[1, f], amp_b[0, f], amp_b[1, f], u, near, 1.0
+                                )
+                if mode != BEAM_INCOHERENT:
+                    for f in range(n_f):
+                        re, im = band_coherent(
+                            amp_a[0, f], amp_a[1, f], amp_b[0, f], amp_b[1, f], u, kmah, omega[f], tau, amp
+                        )
+                        s_re[slot, group, f, v] += re
+                        s_im[slot, group, f, v] += im
     return count
 
 
