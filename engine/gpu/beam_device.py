@@ -160,7 +160,7 @@ def _deposit_points_atomic(grid, acc, pts, chord, scratch, terms):
 def ray_sample_device(beam, ray, x, tangent, time, arc, slow, par, refl, start_new):
     """``beams.ray_sample`` on the device (no slot: the accumulators' slot 0, atomically). Arguments as there."""
     reached = 0
-    if beams.sample_record(beam, ray, x, tangent, time, arc, slow, par, refl, start_new):
+    if beams.sample_record(ray, x, tangent, time, arc, slow, par, refl[0], start_new):
         n_refl = refl[0]
         launch_cos = refl[3]
         kmah = ray.ist[1]

@@ -983,12 +983,12 @@ class Beam(NamedTuple):
     pts: BeamPoints
 
 
-@nb.njit(**NJIT_FLAGS)
-def sample_record(beam, ray, x, tangent, time, arc, slow, par, refl, start_new):
+@nb.njit(inline="always", **NJIT_FLAGS)
+def sample_record(ray, x, tangent, time, arc, slow, par, n_refl, start_new):
     """First half of :func:`ray_sample`: fill ``ray.cur`` (caustic count; amplitudes later, on demand:
-    :func:`chord_amplitudes`); True when the chord
-    ``ray.last`` -> ``ray.cur`` is to be deposited (the caller deposits it, then calls :func:`sample_shift`)."""
-    n_refl = refl[0]
+    :func:`chord_amplitudes`); True when the chord ``ray.last`` -> ``ray.cur`` is to be deposited (the caller
+    deposits it, then calls :func:`sample_shift`). n_refl : the ray's reflections so far. Inlined: a call would
+    take a reference on each of the ray's arrays, for every sample."""
     cur = ray.cur
     for i in range(3):
         cur[S_X + i] = x[i]
@@ -1013,7 +1013,7 @@ def sample_record(beam, ray, x, tangent, time, arc, slow, par, refl, start_new):
     return ray.ist[0] != 0 and not start_new
 
 
-@nb.njit(**NJIT_FLAGS)
+@nb.njit(inline="always", **NJIT_FLAGS)
 def sample_shift(ray):
     """Second half of :func:`ray_sample`: the current sample becomes the last one."""
     for i in range(SAMPLE_SIZE):
@@ -1026,6 +1026,52 @@ def sample_shift(ray):
 
 
 @nb.njit(**NJIT_FLAGS)
+def deposit_sample(beam, slot, ray, refl, grid_near):
+    """Deposit the chord ``ray.last`` -> ``ray.cur`` onto the grid (when ``grid_near``: not :func:`chord_far`) and
+    the receiver points. refl : as in :func:`ray_sample`. Returns the number of contributions added. Called only
+    for a chord that may reach something: its arguments (the beam's tuples of arrays) cost a reference-count
+    update per array."""
+    n_refl = refl[0]
+    launch_cos = refl[3]
+    kmah = ray.ist[1]
+    reached = 0
+    if grid_near:
+        grid = beam.grid
+        group = chord_group(grid.n_refl, n_refl, kmah)
+        chord = (
+            ray.last,
+            ray.cur,
+            ray.amp_last,
+            ray.amp_cur,
+            group,
+            kmah,
+            launch_cos,
+            beam.tabs,
+            refl[1],
+            refl[2],
+            ray.amp0,
+        )
+        reached = deposit_chord(grid, beam.acc, slot, chord, ray.work, ray.terms)
+    if beam.pts.xyz.shape[0] > 0:
+        group = chord_group(beam.p_grid.n_refl, n_refl, kmah)
+        chord = (
+            ray.last,
+            ray.cur,
+            ray.amp_last,
+            ray.amp_cur,
+            group,
+            kmah,
+            launch_cos,
+            beam.tabs,
+            refl[1],
+            refl[2],
+            ray.amp0,
+        )
+        reached += deposit_points(beam.p_grid, beam.p_acc, beam.pts, slot, chord, ray.work, ray.terms)
+    return reached
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
 def ray_sample(beam, slot, ray, x, tangent, time, arc, slow, par, refl, start_new):
     """Record a sample of the ray and deposit the chord from the previous one (unless start_new).
 
@@ -1034,47 +1080,16 @@ def ray_sample(beam, slot, ray, x, tangent, time, arc, slow, par, refl, start_ne
     refl_mat, launch_cos): reflections so far, their incidence cosines and materials, and cos(launch
     elevation). start_new: the sample starts a new chord (launch, or the outgoing side of a reflection).
     Returns the number of points reached.
+
+    Inlined where the traversal samples (about once per chord length of every ray): the sample itself and the
+    test whether its chord can reach the grid bind no array in a call; :func:`deposit_sample` (a call that takes
+    a reference on each of the beam's arrays) runs only for chords that can reach the grid (one in ten on the
+    README job) or when there are receiver points.
     """
     reached = 0
-    if sample_record(beam, ray, x, tangent, time, arc, slow, par, refl, start_new):
-        n_refl = refl[0]
-        launch_cos = refl[3]
-        kmah = ray.ist[1]
-        # the grid and tables are bound only for a chord that may reach the grid (nine in ten do not): binding a
-        # tuple of arrays costs a reference-count update per array
-        if beam.grid.mode != BEAM_OFF and not chord_far(beam.grid, ray.last, ray.cur):
-            grid = beam.grid
-            tabs = beam.tabs
-            group = chord_group(grid.n_refl, n_refl, kmah)
-            chord = (
-                ray.last,
-                ray.cur,
-                ray.amp_last,
-                ray.amp_cur,
-                group,
-                kmah,
-                launch_cos,
-                tabs,
-                refl[1],
-                refl[2],
-                ray.amp0,
-            )
-            reached = deposit_chord(grid, beam.acc, slot, chord, ray.work, ray.terms)
-        if beam.pts.xyz.shape[0] > 0:
-            group = chord_group(beam.p_grid.n_refl, n_refl, kmah)
-            chord = (
-                ray.last,
-                ray.cur,
-                ray.amp_last,
-                ray.amp_cur,
-                group,
-                kmah,
-                launch_cos,
-                beam.tabs,
-                refl[1],
-                refl[2],
-                ray.amp0,
-            )
-            reached += deposit_points(beam.p_grid, beam.p_acc, beam.pts, slot, chord, ray.work, ray.terms)
+    if sample_record(ray, x, tangent, time, arc, slow, par, refl[0], start_new):
+        grid_near = beam.grid.mode != BEAM_OFF and not chord_far(beam.grid, ray.last, ray.cur)
+        if grid_near or beam.pts.xyz.shape[0] > 0:
+            reached = deposit_sample(beam, slot, ray, refl, grid_near)
     sample_shift(ray)
     return reached

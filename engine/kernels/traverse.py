@@ -453,6 +453,7 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
     deposit_on = deposit_on and par_on
     # the smooth medium (mesh/hessian.py; beams, or trace(paraxial="smooth")): per-cell Hessians, no face kicks
     hess = beam.tabs.hessian
+    chord_m = beam.tabs.chord_m  # beam samples at least this far apart (m)
     smooth = par_on and parabolic and not wind_on and hess.shape[0] == planes.shape[0]
     g_nb = np.zeros(3)
     entry = -1
@@ -591,7 +592,7 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
             param_end = curves.param_at_time(curve, cs, max_time - t, param, c_ref)
             ds = curves.evaluate(curve, cs, x, d, param_end, xn, dn)
             if par_on:  # HOOK (a), paraxial: the last segment, to max_time
-                if deposit_on:
+                if deposit_on and ds > chord_m:  # a call binds ~60 arrays: only for segments that need samples
                     _beam_segment(
                         beam,
                         acc,
@@ -662,7 +663,7 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
         elif param != 0.0:
             zero_run += 1
         if par_on:  # HOOK (a), paraxial: samples inside the segment, derivatives at its end (on its face)
-            if deposit_on:
+            if deposit_on and ds > chord_m:  # (as above)
                 _beam_segment(
                     beam,
                     acc,
@@ -706,7 +707,7 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
             if not parabolic:
                 p_norm = paraxial.to_p(curve, c_ref, cs, g, x, xn, dn, par, seg)
             if face >= 0:
-                if deposit_on and (neighbours[cell, face] < 0 or s + ds - bray.last[beams.S_ARC] >= beam.tabs.chord_m):
+                if deposit_on and (neighbours[cell, face] < 0 or s + ds - bray.last[beams.S_ARC] >= chord_m):
                     beams.ray_sample(
                         beam,
                         acc,
