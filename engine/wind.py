@@ -60,6 +60,9 @@ __all__ = [
     "sizing_quantity",
     "wind_at",
     "effective_quantity",
+    "effective_value",
+    "wind_value",
+    "wind_values",
 ]
 
 KARMAN = 0.41  # von Karman constant of the log law (docs/physics.md §7)
@@ -357,37 +360,55 @@ def speed_hessian(code, params, x):
     )
 
 
+WIND_PARAM_SIZE = 10  # the longest parameter array (ridge); wind_values pads shorter ones with zeros
+
+
+@nb.njit(**NJIT_FLAGS)
+def wind_values(params):
+    """The wind's parameter array as a WIND_PARAM_SIZE-tuple of floats (zeros beyond its length): the traversal
+    binds it once per ray and passes values, not the array every thread shares, to the per-crossing calls
+    (each call on an array takes an atomic reference on it)."""
+    p = np.zeros(WIND_PARAM_SIZE)
+    for i in range(min(params.shape[0], WIND_PARAM_SIZE)):
+        p[i] = params[i]
+    return (p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8], p[9])
+
+
+@nb.njit(**NJIT_FLAGS)
+def wind_value(code, params, x, e):
+    """(w, dw/dx, dw/dy, dw/dz): w = u(x) . e (m/s) at point x (m) for the horizontal unit azimuth e, and its
+    exact gradient (1/s). x, e : 3-tuples or (3,) arrays; params : the wind's parameters (array, or the tuple of
+    :func:`wind_values`). code WIND_NONE gives zeros."""
+    if code == WIND_NONE:
+        return 0.0, 0.0, 0.0, 0.0
+    cos_a = params[2] * e[0] + params[3] * e[1]  # cos of the angle between the wind and e
+    u, du_dx, du_dz = _speed(code, params, x)
+    return cos_a * u, cos_a * du_dx, 0.0, cos_a * du_dz
+
+
 @nb.njit(**NJIT_FLAGS)
 def wind_at(code, params, x, e, out_grad):
     """w = u(x) . e (m/s) at point x (3,) metres for the horizontal unit azimuth e (3,).
 
     Writes grad w (3,) (1/s, exact) into out_grad. code WIND_NONE gives 0 and a zero gradient.
     """
-    if code == WIND_NONE:
-        out_grad[0] = 0.0
-        out_grad[1] = 0.0
-        out_grad[2] = 0.0
-        return 0.0
-    cos_a = params[2] * e[0] + params[3] * e[1]  # cos of the angle between the wind and e
-    u, du_dx, du_dz = _speed(code, params, x)
-    out_grad[0] = cos_a * du_dx
-    out_grad[1] = 0.0
-    out_grad[2] = cos_a * du_dz
-    return cos_a * u
+    w, g0, g1, g2 = wind_value(code, params, x, e)
+    out_grad[0] = g0
+    out_grad[1] = g1
+    out_grad[2] = g2
+    return w
 
 
 @nb.njit(**NJIT_FLAGS)
-def effective_quantity(curve, c_ref, m, g, code, params, x, e, w_grad, g_out):
-    """Traced quantity of the effective medium c + u . e at x, and its gradient into g_out (3,).
+def effective_value(curve, c_ref, m, g, code, params, x, e):
+    """:func:`effective_quantity` from values: (m_eff, state, g_eff x, y, z, w, grad w x, y, z).
 
-    m, g : the cell's traced quantity at x and its gradient (n^2 for the parabolic curve, c for the
-    circular one, n = c_ref/c for n-linear). Converts to c and grad c, adds w = u(x).e and grad w, and
-    converts back. Where m is not positive it is returned as is, and where c_eff is not positive -1.0 is
-    returned: both unphysical, the curve setup refuses them (the ray ends as lost). Where the wind term
-    and its gradient are exactly 0, m and g are returned unchanged (bit for bit). w_grad : (3,) scratch.
-    """
+    g, x, e : 3-tuples or (3,) arrays; params : array or :func:`wind_values` tuple. state 1: m_eff and g_eff
+    computed (the medium's own m and g where the wind and its gradient are exactly 0); 0: m not positive,
+    returned as is, nothing else computed (the other entries 0); -1: c_eff not positive, m_eff = -1.0, the wind
+    and its gradient computed but no g_eff. The same arithmetic as effective_quantity, bit for bit."""
     if not (m > 0.0):
-        return m  # unphysical already: the curve setup refuses it
+        return m, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
     if curve == CURVE_PARABOLIC:
         c = c_ref / math.sqrt(m)
         dc = -0.5 * c / m  # dc/dm
@@ -397,15 +418,13 @@ def effective_quantity(curve, c_ref, m, g, code, params, x, e, w_grad, g_out):
     else:
         c = c_ref / m
         dc = -c / m
-    w = wind_at(code, params, x, e, w_grad)
-    if w == 0.0 and w_grad[0] == 0.0 and w_grad[1] == 0.0 and w_grad[2] == 0.0:
+    w, wg0, wg1, wg2 = wind_value(code, params, x, e)
+    if w == 0.0 and wg0 == 0.0 and wg1 == 0.0 and wg2 == 0.0:
         # no wind here (crosswind ray, below z_g): the medium itself, bit for bit (no round trip through c)
-        for i in range(3):
-            g_out[i] = g[i]
-        return m
+        return m, 1, g[0], g[1], g[2], w, wg0, wg1, wg2
     c_eff = c + w
     if not (c_eff > 0.0):
-        return -1.0
+        return -1.0, -1, 0.0, 0.0, 0.0, w, wg0, wg1, wg2
     if curve == CURVE_PARABOLIC:
         m_eff = (c_ref / c_eff) * (c_ref / c_eff)
         dm = -2.0 * m_eff / c_eff  # dm/dc at c_eff
@@ -415,6 +434,28 @@ def effective_quantity(curve, c_ref, m, g, code, params, x, e, w_grad, g_out):
     else:
         m_eff = c_ref / c_eff
         dm = -m_eff / c_eff
-    for i in range(3):
-        g_out[i] = dm * (dc * g[i] + w_grad[i])
+    return m_eff, 1, dm * (dc * g[0] + wg0), dm * (dc * g[1] + wg1), dm * (dc * g[2] + wg2), w, wg0, wg1, wg2
+
+
+@nb.njit(**NJIT_FLAGS)
+def effective_quantity(curve, c_ref, m, g, code, params, x, e, w_grad, g_out):
+    """Traced quantity of the effective medium c + u . e at x, and its gradient into g_out (3,).
+
+    m, g : the cell's traced quantity at x and its gradient (n^2 for the parabolic curve, c for the
+    circular one, n = c_ref/c for n-linear). Converts to c and grad c, adds w = u(x).e and grad w, and
+    converts back. Where m is not positive it is returned as is, and where c_eff is not positive -1.0 is
+    returned: both unphysical, the curve setup refuses them (the ray ends as lost); g_out is then left as it
+    was. Where the wind term and its gradient are exactly 0, m and g are returned unchanged (bit for bit).
+    w_grad : (3,) receives grad w (untouched where m is not positive). The arithmetic is :func:`effective_value`'s.
+    """
+    m_eff, state, g0, g1, g2, _, wg0, wg1, wg2 = effective_value(curve, c_ref, m, g, code, params, x, e)
+    if state == 0:
+        return m_eff
+    w_grad[0] = wg0
+    w_grad[1] = wg1
+    w_grad[2] = wg2
+    if state == 1:
+        g_out[0] = g0
+        g_out[1] = g1
+        g_out[2] = g2
     return m_eff

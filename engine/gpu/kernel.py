@@ -153,7 +153,6 @@ def trace_rays_cuda(mesh, prm, rays, b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts
     par = cuda.local.array(_PAR_SIZE, nb.float64)
     par_tmp = cuda.local.array(_PAR_SIZE, nb.float64)
     seg = cuda.local.array(_SEG_SIZE, nb.float64)  # the segment record with wind (paraxial.beam_wind_terms)
-    pwork = cuda.local.array(12, nb.float64)
     for i in range(_SEG_SIZE):
         seg[i] = 0.0
     for i in range(_PAR_SIZE):
@@ -278,7 +277,7 @@ def trace_rays_cuda(mesh, prm, rays, b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts
         if par_on and wind_on:  # beams with wind: d m0 in closed form, each cell's gradient fixed (trace_one)
             paraxial.tangent_derivs(par, d, p_norm, seg)
             paraxial.beam_wind_terms(curve, c_ref, (ray_wind, wind_params, e_wind), m_raw, gradient[cell], x, par,
-                                     seg, pwork)  # fmt: skip
+                                     seg)  # fmt: skip
             paraxial.finish_terms(par, g, seg)
             paraxial.drop_gradient_terms(seg)
         if par_on:  # the segment restarts from this cell's model at x: p' = n'(x) d (docs/physics.md §10)

@@ -46,7 +46,7 @@ import numba as nb
 from bentray.engine.constants import CURVE_CIRCULAR, CURVE_PARABOLIC, FACE_UNUSED, NJIT_FLAGS
 from bentray.engine.kernels.nlinear import arc_length as _nl_arc
 from bentray.engine.kernels.nlinear import height as _nl_height
-from bentray.engine.wind import effective_quantity, speed_hessian, wind_at
+from bentray.engine.wind import effective_value, speed_hessian, wind_value
 
 PAR_SIZE = 12
 # per-segment record ``seg`` (SEG_SIZE,): D_k at the start [0:6], d m0/dgamma_k [6:8] (m0 the traced quantity
@@ -383,20 +383,24 @@ def wind_terms(curve, c_ref, wind, cell_model, x, d, par, seg):
 
 
 @nb.njit(**NJIT_FLAGS)
-def beam_wind_terms(curve, c_ref, wind, m_raw, g_cell, x, par, seg, work):
+def beam_wind_terms(curve, c_ref, wind, m_raw, g_cell, x, par, seg):
     """The segment record with wind for beams (after tangent_derivs): d m0/dgamma_k in closed form and d g = 0.
 
     Beams take each cell's wind gradient as fixed (:func:`drop_gradient_terms`), so of :func:`wind_terms` only
     d m0 is left: the derivative of the effective medium's m at x along X_k, with the launch azimuth's turn of
     e for k = 2. With w = u(x).e and c_eff = c + w, ``d m0 = g_eff(x).X_k + (dm/dc)(c_eff) u(x).de_k``
-    (g_eff: wind.effective_quantity's gradient at x with the cell's linear model; u.de = wind_at along de,
+    (g_eff: wind.effective_value's gradient at x with the cell's linear model; u.de = wind_value along de,
     linear in e). wind_terms gets the same by central differences (relative step WIND_FD_REL): one effective
-    medium and one wind evaluation here instead of four. wind : (code, params, e); m_raw, g_cell : the cell's
-    traced quantity at x and its gradient. work : (12,) scratch.
+    medium and one wind evaluation here instead of four. wind : (code, params, e), params an array or the tuple
+    of wind.wind_values; m_raw, g_cell : the cell's traced quantity at x and its gradient. Values, not work
+    arrays: the traversal calls this at every crossing. The traversal calls it only where the segment was set
+    up, so the effective medium at x exists (state 1).
     """
     code, params, e = wind
-    g_x = work[0:3]
-    m_eff = effective_quantity(curve, c_ref, m_raw, g_cell, code, params, x, e, work[3:6], g_x)
+    xv = (x[0], x[1], x[2])
+    m_eff, _, g0, g1, g2, _, _, _, _ = effective_value(
+        curve, c_ref, m_raw, (g_cell[0], g_cell[1], g_cell[2]), code, params, xv, (e[0], e[1], e[2])
+    )
     if curve == CURVE_CIRCULAR:
         dm = 1.0
     elif curve == CURVE_PARABOLIC:
@@ -405,14 +409,10 @@ def beam_wind_terms(curve, c_ref, wind, m_raw, g_cell, x, par, seg, work):
     else:
         c_eff = c_ref / m_eff if m_eff > 0.0 else 0.0
         dm = -m_eff / c_eff if c_eff > 0.0 else 0.0
-    de = work[6:9]
-    de[0] = -e[1]
-    de[1] = e[0]
-    de[2] = 0.0
-    u_de = wind_at(code, params, x, de, work[9:12])
+    u_de = wind_value(code, params, xv, (-e[1], e[0], 0.0))[0]
     for k in range(2):
         o = 3 * k
-        seg[6 + k] = g_x[0] * par[o] + g_x[1] * par[o + 1] + g_x[2] * par[o + 2]
+        seg[6 + k] = g0 * par[o] + g1 * par[o + 1] + g2 * par[o + 2]
     seg[7] += dm * u_de
     for i in range(6):
         seg[8 + i] = 0.0

@@ -77,7 +77,7 @@ from bentray.engine.constants import (
     TINY_STEP_REL,
 )
 from bentray.engine.kernels import beams, curves, field, paraxial
-from bentray.engine.wind import WIND_NONE, effective_quantity
+from bentray.engine.wind import WIND_NONE, effective_quantity, effective_value, wind_values
 
 
 class RayParams(NamedTuple):
@@ -394,6 +394,9 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
             e_wind[1] = d[1] / horizontal
             ray_wind = wind_code
     wind_on = ray_wind != WIND_NONE
+    # the wind's parameters and the ray's azimuth as values for the per-crossing calls (wind.wind_values)
+    wp = wind_values(wind_params)
+    ew = (e_wind[0], e_wind[1], e_wind[2])
     xn = np.empty(3)
     dn = np.empty(3)
     xs = np.empty(3)
@@ -412,7 +415,6 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
     p_end = np.zeros(3)
     seg = np.zeros(paraxial.SEG_SIZE)
     rates = np.zeros(6)
-    pwork = np.zeros(21)
     mid_ok = False
     m_raw = 0.0
     bray = beams.new_ray(beam.grid.omega.shape[0])
@@ -489,22 +491,27 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
             # thinner layers, and 10x with the chord middle). The curve, its exit, time_at (which then
             # integrates 1/c_eff: the travel time in the moving medium), the nudge slowness and the field
             # deposit all use them. Without wind nothing here changes.
+            # (wind.effective_value on values: wp, ew and 3-tuples, no array in the calls; g_eff is written
+            # only where effective_quantity would write it, state 1)
             m_raw = m0
-            m0 = effective_quantity(curve, c_ref, m0, g, wind_code, wind_params, x, e_wind, w_grad, g_eff)
+            g_cell = (g[0], g[1], g[2])
+            m0, state, ge0, ge1, ge2, _, _, _, _ = effective_value(
+                curve, c_ref, m0, g_cell, wind_code, wp, (x[0], x[1], x[2]), ew
+            )
+            if state == 1:
+                g_eff[0] = ge0
+                g_eff[1] = ge1
+                g_eff[2] = ge2
             mid_ok = _chord_middle(planes[cell], neighbours[cell], x, d, x_mid)
             if mid_ok:
-                effective_quantity(
-                    curve,
-                    c_ref,
-                    _media_at(media_ref, ref_point, gradient, cell, x_mid),
-                    g,
-                    wind_code,
-                    wind_params,
-                    x_mid,
-                    e_wind,
-                    w_grad,
-                    g_eff,
+                m_mid = _media_at(media_ref, ref_point, gradient, cell, x_mid)
+                _, state, ge0, ge1, ge2, _, _, _, _ = effective_value(
+                    curve, c_ref, m_mid, g_cell, wind_code, wp, (x_mid[0], x_mid[1], x_mid[2]), ew
                 )
+                if state == 1:
+                    g_eff[0] = ge0
+                    g_eff[1] = ge1
+                    g_eff[2] = ge2
             for i in range(3):
                 g[i] = g_eff[i]
         exclude = entry
@@ -530,13 +537,12 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
         if par_on and wind_on:  # the effective medium's derivatives (docs/physics.md §10, wind)
             paraxial.tangent_derivs(par, d, p_norm, seg)
             if deposit_on:  # beams drop the gradient terms: d m0 alone, in closed form
-                paraxial.beam_wind_terms(curve, c_ref, (ray_wind, wind_params, e_wind), m_raw, gradient[cell], x,
-                                         par, seg, pwork)  # fmt: skip
+                paraxial.beam_wind_terms(curve, c_ref, (ray_wind, wp, ew), m_raw, gradient[cell], x, par, seg)
             else:
                 paraxial.wind_terms(
                     curve,
                     c_ref,
-                    (ray_wind, wind_params, e_wind),
+                    (ray_wind, wp, ew),
                     (m_raw, gradient[cell], planes[cell], neighbours[cell], size[cell], mid_ok, x_mid),
                     x,
                     d,

@@ -61,7 +61,7 @@ def test_closed_form_wind_term_matches_the_central_differences(curve, kind):
         neighbours = np.full(4, -9, dtype=np.int64)
         model = (m_raw, g_cell, planes, neighbours, 0.5, False, x.copy())
         wind_fd.wind_terms(cc, C_REF, (code, params, e), model, x, d, par, seg_fd, np.zeros(21))
-        paraxial.beam_wind_terms(cc, C_REF, (code, params, e), m_raw, g_cell, x, par, seg_cf, np.zeros(12))
+        paraxial.beam_wind_terms(cc, C_REF, (code, params, e), m_raw, g_cell, x, par, seg_cf)
         scale = np.abs(g_cell).max() * np.abs(par[:6]).max() + 1e-6 * abs(m_raw)
         worst = max(worst, float(np.max(np.abs(seg_cf[6:8] - seg_fd[6:8])) / scale))
         assert np.all(seg_cf[8:14] == 0.0)

@@ -34,12 +34,14 @@ from bentray.engine.wind import (
     WIND_NONE,
     WIND_RIDGE,
     effective_quantity,
+    effective_value,
     max_wind_speed,
     no_wind,
     sizing_quantity,
     wind_along,
     wind_at,
     wind_spec,
+    wind_values,
 )
 from bentray.scenes.library.ridge import RIDGE_WIND
 from bentray.scenes.wind_models import WIND_SPEC_ADAPTER, RidgeWindSpec, wind_from_spec
@@ -260,6 +262,50 @@ def test_effective_quantity_conversions(curve):
         np.empty(3),
     )
     assert not m > 0.0
+
+
+STORM = np.array([400.0, 1e-30, 1.0, 0.0, -1.0])  # log-law parameters of a 400 m/s wind: c_eff <= 0 upwind
+
+
+@pytest.mark.parametrize("curve", list(CURVE_CODES))
+@pytest.mark.parametrize("kind", ["none", "log", "ridge", "storm"])
+def test_effective_value_on_tuples_is_effective_quantity(curve, kind):
+    """The traversal's per-crossing form (wind.effective_value on wind.wind_values' tuple and 3-tuples) gives
+    effective_quantity's numbers bit for bit, and computes g_eff exactly where effective_quantity writes it:
+    not for m <= 0 (returned as is) nor for c_eff <= 0 (-1.0)."""
+    if kind == "none":
+        code, p = no_wind()
+    elif kind == "storm":
+        code, p = WIND_LOG, STORM
+    else:
+        code, p = wind_spec(kind, {**(RIDGE if kind == "ridge" else LOG), "direction_deg": 30.0})
+    wp = wind_values(p)
+    assert len(wp) == 10 and list(wp[: p.size]) == list(p) and not any(wp[p.size :])
+    c_code = CURVE_CODES[curve]
+    rng = np.random.default_rng(5)
+    states = set()
+    for _ in range(300):
+        x = rng.uniform([-600.0, -50.0, -1.0], [600.0, 50.0, 120.0])
+        az = rng.uniform(0.0, 2.0 * math.pi)
+        e = np.array([math.cos(az), math.sin(az), 0.0])
+        g = rng.normal(0.0, 0.01, 3)
+        m = float(rng.choice([rng.uniform(0.5, 1.5), 0.0, -0.2]))
+        w_grad = np.full(3, 7.0)  # a sentinel: what effective_quantity leaves untouched keeps it
+        g_out = np.full(3, 7.0)
+        m_ref = effective_quantity(c_code, C_REF, m, g, code, p, x, e, w_grad, g_out)
+        m_val, state, g0, g1, g2, _, wg0, wg1, wg2 = effective_value(
+            c_code, C_REF, m, (g[0], g[1], g[2]), code, wp, (x[0], x[1], x[2]), (e[0], e[1], e[2])
+        )
+        states.add(state)
+        assert m_val == m_ref
+        assert (state == 1) == (not np.array_equal(g_out, np.full(3, 7.0)))
+        if state == 1:
+            assert [g0, g1, g2] == list(g_out)
+        if state != 0:
+            assert [wg0, wg1, wg2] == list(w_grad)
+        else:
+            assert np.array_equal(w_grad, np.full(3, 7.0))
+    assert {0, 1} <= states and (kind != "storm" or -1 in states)
 
 
 def test_sizing_quantity_is_the_downwind_medium():
