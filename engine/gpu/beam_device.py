@@ -2,10 +2,11 @@
 
 What runs here is only what differs from the CPU: the accumulation. The sample record (caustic count, amplitude,
 ground reflection factors on a chord's first deposit: ``beams.sample_record`` / ``beams.sample_shift`` /
-``beams.chord_amplitudes``), the search box of a chord
-(``beams.chord_box``, ``beams.points_box``), a point's beam (``beams.point_beam_terms``: hat weight, intensity,
-travel time, foot interpolation) and its per-band terms (``beams.band_energy``, ``beams.band_coherent``) are the
-CPU's own CPU-jitted functions, which numba-cuda compiles as device functions (engine/gpu/kernel.py's docstring).
+``beams.chord_amplitudes``), the search box of a chord (``beams.chord_box``, ``beams.points_box``) and its
+candidate ranges (``beams._slab_k_range``, ``beams._image_k_range``), a point's beam (``beams.point_beam``: hat
+weight, intensity, travel time, foot interpolation) and its per-band terms (``beams.band_energy``,
+``beams.band_coherent``) are the CPU's own CPU-jitted functions, which numba-cuda compiles as device functions
+(engine/gpu/kernel.py's docstring).
 The CPU adds the terms with ``+=`` into its thread's slot; here every thread adds them into the one accumulator
 slot (slot 0 of each BeamAcc array) with ``cuda.atomic.add``.
 
@@ -83,56 +84,83 @@ def _add_atomic(grid, acc, chord, v, terms):
 
 
 @cuda.jit(device=True)
+def _beam_atomic(grid, acc, chord, tc, px, py, pz, v, terms):
+    """The beam of the chord at point (px, py, pz) (``beams.point_beam`` on the chord's values tc = (ta, tb, gc))
+    added atomically to point v; True when the chord owns the point."""
+    owned, w, rel_i, u, tau, amp, near = beams.point_beam(tc[0], tc[1], tc[2], chord[6], px, py, pz)
+    if not owned:
+        return False
+    terms[PB_W] = w
+    terms[PB_REL_I] = rel_i
+    terms[PB_U] = u
+    terms[PB_TAU] = tau
+    terms[PB_AMP] = amp
+    terms[beams.PB_NEAR] = near
+    _add_atomic(grid, acc, chord, v, terms)
+    return True
+
+
+@cuda.jit(device=True)
 def _deposit_chord_atomic(grid, acc, chord, scratch, terms):
-    """``beams.deposit_chord`` with atomic accumulation (same search box, same points, same terms)."""
+    """``beams.deposit_chord`` with atomic accumulation: the same search box, candidate ranges
+    (``beams._slab_k_range``, ``beams._image_k_range``), points, images and terms; points and images in two
+    passes (the order of atomics is undefined anyway)."""
     i0, i1, j0, j1, z_lo, z_hi = beams.chord_box(grid, chord[0], chord[1])
+    if i0 > i1 or j0 > j1:
+        return 0
+    ta = beams.sample_values(chord[0])
+    tb = beams.sample_values(chord[1])
+    tc = (ta, tb, beams.grid_values(grid))
     ny = grid.shape[1]
     nz = grid.shape[2]
+    dz = grid.spacing[2]
     count = 0
     for i in range(i0, i1 + 1):
         px = grid.origin[0] + i * grid.spacing[0]
         for j in range(j0, j1 + 1):
             py = grid.origin[1] + j * grid.spacing[1]
             zo = grid.origin[2] + grid.z_offset[i, j]
-            k0, k1 = beams._index_range(z_lo, z_hi, zo, grid.spacing[2], nz)
+            k0, k1 = beams._index_range(z_lo, z_hi, zo, dz, nz)
+            if k0 <= k1:
+                k0, k1 = beams._slab_k_range(ta, tb, (px, py, zo), (0.0, 0.0, dz), k0, k1)
             for k in range(k0, k1 + 1):
-                v = (i * ny + j) * nz + k
-                if beams.point_beam_terms(grid, chord, px, py, zo + k * grid.spacing[2], terms):
-                    _add_atomic(grid, acc, chord, v, terms)
+                if _beam_atomic(grid, acc, chord, tc, px, py, zo + k * dz, (i * ny + j) * nz + k, terms):
                     count += 1
     if grid.mirror.shape[0] > 0:
-        count += _deposit_mirrored_atomic(grid, acc, chord, scratch, terms)
+        count += _deposit_mirrored_atomic(grid, acc, chord, tc, terms, (i0, i1, j0, j1, z_lo, z_hi))
     return count
 
 
 @cuda.jit(device=True)
-def _deposit_mirrored_atomic(grid, acc, chord, scratch, terms):
-    """The images of ``beams.deposit_chord`` (points near the ground, mirrored through its plane) with atomic
-    accumulation (the same images and terms; every image tested, not the CPU's narrowed index range)."""
-    i0, i1, j0, j1, z_lo, z_hi = beams.chord_box(grid, chord[0], chord[1])
-    if i0 > i1 or j0 > j1:
-        return 0
+def _deposit_mirrored_atomic(grid, acc, chord, tc, terms, box):
+    """The ground images of ``beams.deposit_chord`` with atomic accumulation: the same columns (the box one wider
+    each way), index ranges and per-image tests (``beams.mirror_point``'s, inline), the same terms."""
+    i0, i1, j0, j1, z_lo, z_hi = box
     nx = grid.shape[0]
     ny = grid.shape[1]
     nz = grid.shape[2]
+    dz = grid.spacing[2]
     reach = 0.5 * (z_hi - z_lo)
-    img = scratch[beams.POINT_SCRATCH : beams.POINT_SCRATCH + 3]
     count = 0
     for i in range(max(i0 - 1, 0), min(i1 + 1, nx - 1) + 1):
         px = grid.origin[0] + i * grid.spacing[0]
         for j in range(max(j0 - 1, 0), min(j1 + 1, ny - 1) + 1):
             py = grid.origin[1] + j * grid.spacing[1]
             zo = grid.origin[2] + grid.z_offset[i, j]
-            for k in range(nz):
-                pz = zo + k * grid.spacing[2]
-                if not beams.mirror_point(grid, i, j, px, py, pz, reach, img):
-                    if pz > zo + 2.0 * reach + grid.spacing[2]:
+            m = (grid.mirror[i, j, 0], grid.mirror[i, j, 1], grid.mirror[i, j, 2], grid.mirror[i, j, 3])
+            n0, n1 = beams._image_k_range(tc[0], tc[1], px, py, zo, dz, nz, m, reach)
+            for k in range(n0, n1 + 1):
+                pz = zo + k * dz
+                h = m[0] * px + m[1] * py + m[2] * pz - m[3]
+                if h < 0.0 or h > reach:
+                    if pz > zo + 2.0 * reach + dz:
                         break
                     continue
-                if img[2] < z_lo or img[2] > z_hi:
+                qz = pz - 2.0 * h * m[2]
+                if qz < z_lo or qz > z_hi:
                     continue
-                if beams.point_beam_terms(grid, chord, img[0], img[1], img[2], terms):
-                    _add_atomic(grid, acc, chord, (i * ny + j) * nz + k, terms)
+                if _beam_atomic(grid, acc, chord, tc, px - 2.0 * h * m[0], py - 2.0 * h * m[1], qz,
+                                (i * ny + j) * nz + k, terms):  # fmt: skip
                     count += 1
     return count
 
@@ -168,35 +196,11 @@ def ray_sample_device(beam, ray, x, tangent, time, arc, slow, par, refl, start_n
         tabs = beam.tabs
         if grid.mode != BEAM_OFF:
             group = beams.chord_group(grid.n_refl, n_refl, kmah)
-            chord = (
-                ray.last,
-                ray.cur,
-                ray.amp_last,
-                ray.amp_cur,
-                group,
-                kmah,
-                launch_cos,
-                tabs,
-                refl[1],
-                refl[2],
-                ray.amp0,
-            )
+            chord = beams.ray_chord(ray, group, kmah, launch_cos, tabs, refl)
             reached = _deposit_chord_atomic(grid, beam.acc, chord, ray.work, ray.terms)
         if beam.pts.xyz.shape[0] > 0:
             group = beams.chord_group(beam.p_grid.n_refl, n_refl, kmah)
-            chord = (
-                ray.last,
-                ray.cur,
-                ray.amp_last,
-                ray.amp_cur,
-                group,
-                kmah,
-                launch_cos,
-                tabs,
-                refl[1],
-                refl[2],
-                ray.amp0,
-            )
+            chord = beams.ray_chord(ray, group, kmah, launch_cos, tabs, refl)
             reached += _deposit_points_atomic(beam.p_grid, beam.p_acc, beam.pts, chord, ray.work, ray.terms)
     beams.sample_shift(ray)
     return reached

@@ -1025,6 +1025,13 @@ def sample_shift(ray):
     ray.ist[0] = 1
 
 
+@nb.njit(inline="always", **NJIT_FLAGS)
+def ray_chord(ray, group, kmah, launch_cos, tabs, refl):
+    """The chord tuple of :func:`deposit_chord` for a ray's last chord (``ray.last`` -> ``ray.cur``, BeamRay):
+    group, kmah, launch_cos as there; tabs the BeamTables; refl the reflections tuple of :func:`ray_sample`."""
+    return (ray.last, ray.cur, ray.amp_last, ray.amp_cur, group, kmah, launch_cos, tabs, refl[1], refl[2], ray.amp0)
+
+
 @nb.njit(**NJIT_FLAGS)
 def deposit_sample(beam, slot, ray, refl, grid_near):
     """Deposit the chord ``ray.last`` -> ``ray.cur`` onto the grid (when ``grid_near``: not :func:`chord_far`) and
@@ -1038,35 +1045,11 @@ def deposit_sample(beam, slot, ray, refl, grid_near):
     if grid_near:
         grid = beam.grid
         group = chord_group(grid.n_refl, n_refl, kmah)
-        chord = (
-            ray.last,
-            ray.cur,
-            ray.amp_last,
-            ray.amp_cur,
-            group,
-            kmah,
-            launch_cos,
-            beam.tabs,
-            refl[1],
-            refl[2],
-            ray.amp0,
-        )
+        chord = ray_chord(ray, group, kmah, launch_cos, beam.tabs, refl)
         reached = deposit_chord(grid, beam.acc, slot, chord, ray.work, ray.terms)
     if beam.pts.xyz.shape[0] > 0:
         group = chord_group(beam.p_grid.n_refl, n_refl, kmah)
-        chord = (
-            ray.last,
-            ray.cur,
-            ray.amp_last,
-            ray.amp_cur,
-            group,
-            kmah,
-            launch_cos,
-            beam.tabs,
-            refl[1],
-            refl[2],
-            ray.amp0,
-        )
+        chord = ray_chord(ray, group, kmah, launch_cos, beam.tabs, refl)
         reached += deposit_points(beam.p_grid, beam.p_acc, beam.pts, slot, chord, ray.work, ray.terms)
     return reached
 
