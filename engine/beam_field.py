@@ -323,11 +323,12 @@ def beam_grid(
 ) -> BeamGrid:
     """The kernel's BeamGrid (see engine/kernels/beams.py for the meaning of each entry)."""
     nx, ny, _ = grid.shape
+    z_off = np.zeros((nx, ny)) if z_offset is None else np.ascontiguousarray(z_offset, float).reshape(nx, ny)
     return BeamGrid(
         np.asarray(grid.origin, float),
         np.asarray(grid.spacing, float),
         np.asarray(grid.shape, np.int64),
-        np.zeros((nx, ny)) if z_offset is None else np.ascontiguousarray(z_offset, float).reshape(nx, ny),
+        z_off,
         2.0 * math.pi * np.asarray(frequencies_hz, float),
         float(c_ref),
         np.asarray(dgamma, float),
@@ -337,6 +338,7 @@ def beam_grid(
         float(fresnel_k),
         0.25 * np.asarray(fan_extent, float),
         NO_MIRROR if mirror is None else np.ascontiguousarray(mirror, float).reshape(nx, ny, 4),
+        float(grid.origin[2] + (np.max(z_off) if z_off.size else 0.0) + (grid.shape[2] - 1) * grid.spacing[2]),
     )
 
 
@@ -381,6 +383,7 @@ def no_beam_args(n_f: int = 1) -> tuple[BeamGrid, BeamAcc, BeamTables, BeamGrid,
         0.0,
         np.zeros(2),
         NO_MIRROR,
+        math.inf,
     )
     t = BeamTables(np.zeros((1, n_f, 2, 2, 2)), np.zeros(5), np.zeros(n_f), 1.0, NO_HESSIAN)
     return g, _empty_acc(), t, g, _empty_acc(), bin_points(np.zeros((0, 3)))

@@ -148,7 +148,7 @@ def _deposit_mirrored_atomic(grid, acc, chord, tc, terms, box):
             py = grid.origin[1] + j * grid.spacing[1]
             zo = grid.origin[2] + grid.z_offset[i, j]
             m = (grid.mirror[i, j, 0], grid.mirror[i, j, 1], grid.mirror[i, j, 2], grid.mirror[i, j, 3])
-            n0, n1 = beams._image_k_range(tc[0], tc[1], px, py, zo, dz, nz, m, reach)
+            n0, n1 = beams._image_k_range(tc[0], tc[1], px, py, zo, dz, nz, m, reach, (z_lo, z_hi))
             for k in range(n0, n1 + 1):
                 pz = zo + k * dz
                 h = m[0] * px + m[1] * py + m[2] * pz - m[3]
@@ -194,7 +194,7 @@ def ray_sample_device(beam, ray, x, tangent, time, arc, slow, par, refl, start_n
         kmah = ray.ist[1]
         grid = beam.grid
         tabs = beam.tabs
-        if grid.mode != BEAM_OFF:
+        if grid.mode != BEAM_OFF and not beams.chord_far(grid, ray.last, ray.cur):  # as beams.ray_sample
             group = beams.chord_group(grid.n_refl, n_refl, kmah)
             chord = beams.ray_chord(ray, group, kmah, launch_cos, tabs, refl)
             reached = _deposit_chord_atomic(grid, beam.acc, chord, ray.work, ray.terms)

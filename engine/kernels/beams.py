@@ -100,7 +100,9 @@ class BeamGrid(NamedTuple):
     mirror : (nx, ny, 4) the ground's tangent plane under each column, unit normal n (up) and offset d
         (``n.x = d``): each point's mirror image through it is evaluated too, which returns the kernel mass a
         floored beam spreads below the ground (the reflection method of kernel estimates; docs/physics.md §11);
-        (0, 0, 4): none.
+        (0, 0, 4): none. The planes' normals point up (n_z >= 0): an image then lies no higher than its point.
+    z_top : m, the highest grid point (origin z + max z_offset + (nz - 1) spacing z; inf: unknown): a chord whose
+        beams stay above it can reach no point and, with upward normals, no image (:func:`chord_far`).
     """
 
     origin: np.ndarray
@@ -116,6 +118,7 @@ class BeamGrid(NamedTuple):
     fresnel_k: float
     fresnel_cap: np.ndarray
     mirror: np.ndarray
+    z_top: float
 
 
 class BeamAcc(NamedTuple):
@@ -317,10 +320,13 @@ def _misses(lo, hi, origin, spacing, n):
 
 @nb.njit(inline="always", **NJIT_FLAGS)
 def chord_far(grid, sa, sb):
-    """True when the chord from sa to sb cannot reach the grid's columns (chord_box's first test): checked
-    before :func:`deposit_chord` is called, so that the nine chords in ten that miss the grid pay neither the
-    call nor the reference counts of its tuple of arrays."""
+    """True when the chord from sa to sb cannot reach the grid's columns (chord_box's first test) or stays, with
+    its beams' reach, above the grid's highest point (BeamGrid.z_top; no point there, and no image: an image
+    lies no higher than its point): checked before :func:`deposit_chord` is called, so that chords that miss the
+    grid pay neither the call nor the reference counts of its tuple of arrays."""
     bound = _reach_bound(sa, sb, grid.dgamma[0], grid.dgamma[1], grid.w_min) + 2.0 * chord_widening(grid, sa, sb)
+    if min(sa[S_X + 2], sb[S_X + 2]) - bound > grid.z_top:
+        return True
     return _misses(
         min(sa[S_X], sb[S_X]) - bound, max(sa[S_X], sb[S_X]) + bound, grid.origin[0], grid.spacing[0], grid.shape[0]
     ) or _misses(
@@ -607,6 +613,20 @@ SLAB_TOL_M = 1e-6
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
+def _floor_in(t, lo, hi):
+    """floor(t) as a float, t first clamped to [lo - 2, hi + 2] (finite; +-inf allowed): the candidate ranges
+    need the bound only within their index range, and the clamp keeps inf out of the integer rounding (math.floor,
+    which the CUDA target has: numpy's ufuncs it has not)."""
+    return float(math.floor(min(max(t, lo - 2.0), hi + 2.0)))
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _ceil_in(t, lo, hi):
+    """ceil(t) as a float, t clamped as in :func:`_floor_in`."""
+    return float(math.ceil(min(max(t, lo - 2.0), hi + 2.0)))
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
 def _plane_k_range(a0, ak, b0, bk, k0, k1):
     """The part of the index range [k0, k1] of candidates r_k = r_0 + k step that may lie between a chord's end
     planes, given a0 = (r_0 - x_a).T_a, ak = step.T_a, b0 = (r_0 - x_b).T_b, bk = step.T_b (both distances linear
@@ -618,18 +638,18 @@ def _plane_k_range(a0, ak, b0, bk, k0, k1):
     tol = SLAB_TOL_M
     lo = float(k0)
     hi = float(k1)
-    # a0 + ak k >= -tol (bounds as floats: np.floor / np.ceil keep an overflow to +-inf a float)
+    # a0 + ak k >= -tol (each bound clamped to [lo - 2, hi + 2] before rounding: an overflow to +-inf stays finite)
     if ak > 0.0:
-        lo = max(lo, np.floor((-tol - a0) / ak) - 1.0)
+        lo = max(lo, _floor_in((-tol - a0) / ak, lo, hi) - 1.0)
     elif ak < 0.0:
-        hi = min(hi, np.ceil((-tol - a0) / ak) + 1.0)
+        hi = min(hi, _ceil_in((-tol - a0) / ak, lo, hi) + 1.0)
     elif a0 < -tol:
         return 1, 0
     # b0 + bk k < tol
     if bk > 0.0:
-        hi = min(hi, np.ceil((tol - b0) / bk) + 1.0)
+        hi = min(hi, _ceil_in((tol - b0) / bk, lo, hi) + 1.0)
     elif bk < 0.0:
-        lo = max(lo, np.floor((tol - b0) / bk) - 1.0)
+        lo = max(lo, _floor_in((tol - b0) / bk, lo, hi) - 1.0)
     elif b0 >= tol:
         return 1, 0
     if not (lo <= hi):
@@ -649,25 +669,31 @@ def _slab_k_range(ta, tb, r0, step, k0, k1):
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
-def _image_k_range(ta, tb, px, py, zo, dz, nz, m, reach):
+def _image_k_range(ta, tb, px, py, zo, dz, nz, m, reach, z_band):
     """Indices k of the column's points (px, py, zo + k dz) whose ground images can be deposited: those at most
-    ``reach`` above the mirror plane m = (n, d) (h = n.r - d in [0, reach]) and whose image can lie between the
-    chord's end planes; (1, 0) when none; (0, nz - 1) (no pruning) where the plane is too steep to invert (n_z dz
-    below 1e-9 m). The images are linear in k: r_k - 2 h_k n with h_k = h_0 + n_z dz k. Conservative, as
-    :func:`_plane_k_range` (one index of slack on the height band as well)."""
+    ``reach`` above the mirror plane m = (n, d) (h = n.r - d in [0, reach]) and whose image can lie in the height
+    band z_band = (z_lo, z_hi) of the chord's box and between the chord's end planes; (1, 0) when none;
+    (0, nz - 1) (no pruning) where the plane is too steep to invert (n_z dz below 1e-9 m). The images are linear
+    in k: r_k - 2 h_k n with h_k = h_0 + n_z dz k. Conservative, as :func:`_plane_k_range` (one index of slack
+    on the reach as well)."""
     hk = m[2] * dz
     if not (hk > 1e-9):
         return 0, nz - 1
     h0 = m[0] * px + m[1] * py + m[2] * zo - m[3]
     if not math.isfinite(h0):
         return 0, nz - 1
-    lo = max(0.0, np.ceil(-h0 / hk) - 1.0)
-    hi = min(float(nz - 1), np.floor((reach - h0) / hk) + 1.0)
+    top = float(nz - 1)
+    lo = max(0.0, _ceil_in(-h0 / hk, 0.0, top) - 1.0)
+    hi = min(top, _floor_in((reach - h0) / hk, 0.0, top) + 1.0)
     if not (lo <= hi):
         return 1, 0
     r0 = (px - 2.0 * h0 * m[0], py - 2.0 * h0 * m[1], zo - 2.0 * h0 * m[2])
     step = (-2.0 * hk * m[0], -2.0 * hk * m[1], dz - 2.0 * hk * m[2])
-    return _slab_k_range(ta, tb, r0, step, int(lo), int(hi))
+    # the image's height in [z_lo, z_hi]: r0_z - z_lo + step_z k >= 0 and r0_z - z_hi + step_z k <= 0
+    k0, k1 = _plane_k_range(r0[2] - z_band[0], step[2], r0[2] - z_band[1], step[2], int(lo), int(hi))
+    if k0 > k1:
+        return 1, 0
+    return _slab_k_range(ta, tb, r0, step, k0, k1)
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -752,7 +778,7 @@ def deposit_chord(grid, acc, slot, chord, scratch, terms):
                 m1 = mirror[i, j, 1]
                 m2 = mirror[i, j, 2]
                 m3 = mirror[i, j, 3]
-                n0, n1 = _image_k_range(ta, tb, px, py, zo, dz, nz, (m0, m1, m2, m3), reach)
+                n0, n1 = _image_k_range(ta, tb, px, py, zo, dz, nz, (m0, m1, m2, m3), reach, (z_lo, z_hi))
             # the column's candidates: points k0..k1 (image False), then images n0..n1 (image True), each image
             # tested as beams.mirror_point does (its index range only skips images that cannot be deposited)
             image = k0 > k1

@@ -70,7 +70,9 @@ def _chords(rng: np.random.Generator, fg: FieldGrid, n: int) -> list[tuple[np.nd
         e1 = np.array([-math.sin(el) * math.cos(az), -math.sin(el) * math.sin(az), math.cos(el)])
         e2 = np.array([-math.sin(az), math.cos(az), 0.0])
         arc = rng.uniform(30.0, 1500.0)
-        mid = rng.uniform(lo, hi) + np.array([0.0, 0.0, rng.uniform(-5.0, 25.0)])
+        mid = rng.uniform(lo, hi) + np.array(
+            [0.0, 0.0, rng.choice([rng.uniform(-5.0, 25.0), rng.uniform(25.0, 150.0)])]
+        )
         length = rng.uniform(2.0, 12.0)
         a = mid - 0.5 * length * d
         b = mid + 0.5 * length * d
@@ -94,6 +96,7 @@ def test_chord_search_matches_full_scan(mode: str, fresnel_k: float, steep: bool
     work = np.zeros(beams.WORK_SIZE)
     terms = np.zeros(beams.PB_SIZE)
     total = 0
+    far = 0  # chords chord_far rejects
     direct = 0  # the same chords without mirror planes: the images' share is total - direct
     flat = grid._replace(mirror=np.zeros((0, 0, 4)))
     scratch = _new_acc(grid, fg.n_points, 1)
@@ -112,9 +115,13 @@ def test_chord_search_matches_full_scan(mode: str, fresnel_k: float, steep: bool
             else:
                 outs.append(deposit_chord_scan(grid, a, 0, chord))
         assert outs[0] == outs[1]
+        if beams.chord_far(grid, sa, sb):  # the traversal's pre-test (columns and BeamGrid.z_top) drops no term
+            far += 1
+            assert outs[0] == 0
         total += outs[0]
         chord = (sa.copy(), sb.copy(), np.zeros((2, FREQS.size)), np.zeros((2, FREQS.size)), group, 1, launch_cos)
         direct += deposit_chord_scan(flat, scratch, 0, chord + (tabs, refl_cos, refl_mat, amp0))
     assert direct > 300 and total - direct > 200  # the chords reach the grid: points and images
+    assert steep or far > 50  # and some do not (above the grid's top; the steep grid's top is above them all)
     for name in acc._fields:
         assert np.array_equal(getattr(acc, name), getattr(ref, name)), name
