@@ -87,15 +87,8 @@ def _add_atomic(grid, acc, chord, v, terms):
 def _beam_atomic(grid, acc, chord, tc, px, py, pz, v, terms):
     """The beam of the chord at point (px, py, pz) (``beams.point_beam`` on the chord's values tc = (ta, tb, gc))
     added atomically to point v; True when the chord owns the point."""
-    owned, w, rel_i, u, tau, amp, near = beams.point_beam(tc[0], tc[1], tc[2], chord[6], px, py, pz)
-    if not owned:
+    if not beams.write_terms(terms, beams.point_beam(tc[0], tc[1], tc[2], chord[6], px, py, pz)):
         return False
-    terms[PB_W] = w
-    terms[PB_REL_I] = rel_i
-    terms[PB_U] = u
-    terms[PB_TAU] = tau
-    terms[PB_AMP] = amp
-    terms[beams.PB_NEAR] = near
     _add_atomic(grid, acc, chord, v, terms)
     return True
 

@@ -484,9 +484,16 @@ def point_beam_terms(grid, chord, px, py, pz, terms):
     """:func:`point_beam` of ``chord`` (see :func:`deposit_chord`) at point (px, py, pz), written into ``terms``
     (PB_*); False if the chord does not own the point or its hat weight is zero. terms : (PB_SIZE,) out array
     (caller-provided: no allocation, so the device kernel calls this too)."""
-    owned, w, rel_i, u, tau, amp, near = point_beam(
-        sample_values(chord[0]), sample_values(chord[1]), grid_values(grid), chord[6], px, py, pz
+    return write_terms(
+        terms, point_beam(sample_values(chord[0]), sample_values(chord[1]), grid_values(grid), chord[6], px, py, pz)
     )
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def write_terms(terms, beam):
+    """:func:`point_beam`'s answer ``beam`` into the work array ``terms`` (PB_*) when the chord owns the point;
+    returns whether it does (terms untouched otherwise)."""
+    owned, w, rel_i, u, tau, amp, near = beam
     if not owned:
         return False
     terms[PB_W] = w

@@ -153,6 +153,18 @@ def _slowness_at(curve, c_ref, media_ref, ref_point, gradient, cell, x, wind_cod
     return curves.slowness(curve, m, c_ref)
 
 
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _effective_into(eff, g_eff):
+    """wind.effective_value's answer ``eff``: its gradient into g_eff (3,) where effective_quantity would write it
+    (state 1; g_eff keeps what it held otherwise); returns the effective traced quantity."""
+    m_eff, state, ge0, ge1, ge2, _, _, _, _ = eff
+    if state == 1:
+        g_eff[0] = ge0
+        g_eff[1] = ge1
+        g_eff[2] = ge2
+    return m_eff
+
+
 @nb.njit(**NJIT_FLAGS)
 def _chord_middle(planes, neighbours, x, d, out):
     """Middle of the straight chord from x along d to the cell's boundary, into out (3,); False if none.
@@ -495,23 +507,15 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
             # only where effective_quantity would write it, state 1)
             m_raw = m0
             g_cell = (g[0], g[1], g[2])
-            m0, state, ge0, ge1, ge2, _, _, _, _ = effective_value(
-                curve, c_ref, m0, g_cell, wind_code, wp, (x[0], x[1], x[2]), ew
-            )
-            if state == 1:
-                g_eff[0] = ge0
-                g_eff[1] = ge1
-                g_eff[2] = ge2
+            x_now = (x[0], x[1], x[2])
+            m0 = _effective_into(effective_value(curve, c_ref, m0, g_cell, wind_code, wp, x_now, ew), g_eff)
             mid_ok = _chord_middle(planes[cell], neighbours[cell], x, d, x_mid)
             if mid_ok:
                 m_mid = _media_at(media_ref, ref_point, gradient, cell, x_mid)
-                _, state, ge0, ge1, ge2, _, _, _, _ = effective_value(
-                    curve, c_ref, m_mid, g_cell, wind_code, wp, (x_mid[0], x_mid[1], x_mid[2]), ew
+                _effective_into(
+                    effective_value(curve, c_ref, m_mid, g_cell, wind_code, wp, (x_mid[0], x_mid[1], x_mid[2]), ew),
+                    g_eff,
                 )
-                if state == 1:
-                    g_eff[0] = ge0
-                    g_eff[1] = ge1
-                    g_eff[2] = ge2
             for i in range(3):
                 g[i] = g_eff[i]
         exclude = entry
