@@ -27,6 +27,7 @@ from bentray.engine.constants import (
 )
 from bentray.engine.errors import MaterialTableError
 from bentray.engine.field_buffers import REFLECTION_RECORD_CAP, FieldBuffers, no_field_tuple
+from bentray.engine.kernels.beams import Beam
 from bentray.engine.kernels.field import FieldAcc
 from bentray.engine.kernels.lean import trace_block_lanes
 from bentray.engine.kernels.traverse import PAR_OUT_SIZE, PathBuffers, RayParams, Rays, trace_rays
@@ -350,6 +351,6 @@ def trace(
         np.zeros((n, COUNT_SIZE), dtype=np.int64),
         np.full((n if paraxial else 0, PAR_OUT_SIZE), np.nan),
     )
-    trace_rays(mesh, prm, fa.fld, path_buf, rays, fa.n_slots, *fa.beam)
+    trace_rays(mesh, prm, fa.fld, path_buf, rays, fa.n_slots, Beam(*fa.beam))
     paths = _ray_paths(path_buf, rays.out_counts[:, COUNT_SAMPLES]) if record else None
     return _trace_result(rays, paths, field is not None or record_reflections, paraxial)

@@ -146,6 +146,14 @@ def evaluate(curve: int, cs, x0, d0, param: float, x_out, t_out) -> float:
 
 
 @nb.njit(**NJIT_FLAGS)
+def evaluate_call(curve: int, cs, x0, d0, param: float, x_out, t_out) -> float:
+    """:func:`evaluate` as a called function, for call sites off the per-crossing path (path samples, the last
+    segment of a ray). evaluate is inlined wherever it is called, and each inlined copy (with its arc length and
+    the three curve kinds) is typed and compiled again (5 copies cost ~8 s of the first run's compilation)."""
+    return evaluate(curve, cs, x0, d0, param, x_out, t_out)
+
+
+@nb.njit(**NJIT_FLAGS)
 def interior_step(curve: int, cs) -> float:
     """Param of a within-cell step when no face is reached (circular: a quarter turn), else inf."""
     if curve == CURVE_CIRCULAR and cs[3] > 0.0:

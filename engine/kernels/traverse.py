@@ -21,11 +21,11 @@ Optional wind (engine/wind.py): each ray sees the effective medium c + u(x) . e 
 launch azimuth; the wind's value at each entry point and its exact gradient at the middle of the straight
 chord through the cell are added to the cell's model (no per-cell wind arrays).
 
-Kernel contract (structs, not long argument lists): ``trace_rays(mesh, prm, fld, paths, rays, n_slots)``
+Kernel contract (structs, not long argument lists): ``trace_rays(mesh, prm, fld, paths, rays, n_slots, beam)``
 with mesh a mesh.cells.CellMesh, prm a :class:`RayParams`, fld a field.FieldAcc, paths a
 :class:`PathBuffers` and rays a :class:`Rays` (per-ray inputs and the out_state / out_counts outputs,
 columns constants.STATE_* / COUNT_*); the ray's own field state is one field.RayField. Tolerances live in
-engine/constants.py. The per-ray loop of trace_one is kept as one function with its state in local
+engine/constants.py. The per-ray loop of trace_slots is kept as one function with its state in local
 scalars: a split into step functions over a per-ray state struct (arrays) was bit-identical but measured
 2.3-2.8x slower (crossings per second, desert scene), so only the rare events are helpers. The places
 where per-ray extra state (paraxial derivatives, beam deposit) is updated are marked ``HOOK (a)`` (after
@@ -36,6 +36,7 @@ each segment inside a cell, also the last one at max_time), ``HOOK (b)`` (face c
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import numba as nb
@@ -60,7 +61,6 @@ from bentray.engine.constants import (
     NJIT_FLAGS,
     NUDGE_REL,
     ON_FACE_REL,
-    PARALLEL_FLAGS,
     PINGPONG_SLIDE,
     SLIDE_COS,
     SLIDE_DIST_REL,
@@ -77,6 +77,7 @@ from bentray.engine.constants import (
     TINY_STEP_REL,
 )
 from bentray.engine.kernels import beams, curves, field, paraxial
+from bentray.engine.kernels.borrow import borrow
 from bentray.engine.wind import WIND_NONE, effective_quantity, effective_value, wind_values
 
 
@@ -286,7 +287,7 @@ def _emit_segment(prm, paths, cs, x0, d0, param_end, span, base, count, xs, ts):
         n_int = 2 * paths.cap
     for j in range(1, n_int + 1):
         sig = param_end * j / (n_int + 1)
-        ds = curves.evaluate(prm.curve, cs, x0, d0, sig, xs, ts)
+        ds = curves.evaluate_call(prm.curve, cs, x0, d0, sig, xs, ts)
         tt = t0 + curves.time_at(prm.curve, cs, sig, prm.c_ref)
         count = _emit(paths.pts, paths.t, paths.s, base, paths.cap, count, xs, tt, s0 + ds)
         t_last = tt
@@ -342,8 +343,23 @@ def _beam_segment(beam, slot, bray, prm, cs, x, d, seg, par, scratch, refl):
 
 
 @nb.njit(**NJIT_FLAGS)
-def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
-    """Trace ray i (rays.origins[i], rays.directions[i] from rays.start_cells[i]) to its end state.
+def trace_slots(mesh, prm, fld, paths, rays, slots, beam):
+    """Trace the rays of accumulator slots ``slots[0] <= acc < slots[1]`` (of ``slots[2]``) to their end states.
+
+    Slot ``acc`` holds rays acc, acc + n_slots, ... (interleaved, so every slot gets a like mix of directions);
+    ray i is traced from rays.origins[i], rays.directions[i] in rays.start_cells[i]. One call runs on one
+    thread (the kernel releases the GIL; :func:`trace_rays` runs disjoint slot ranges on a thread pool), and
+    only it writes slot acc's accumulators, so for a fixed n_slots the results do not depend on the threads.
+    Why this shape (measured on the README job's miniature from an empty cache, and on its reduced copy,
+    181 x 61 rays, one thread; docs/physics.md §17):
+    - the loop over rays lives here, not in a caller: a caller links this kernel's machine code into its own
+      and LLVM optimises and emits all of it again (a prange caller did that about four times over, through
+      its gufunc: 17-20 s of the first run's ~100 s of compilation);
+    - the inputs are borrowed (kernels/borrow.py): without that, every array taken out of the structs in the
+      hot paths was reference counted with atomics (a prange gufunc's arguments are not), and the beam trace
+      ran 15 % slower than under the prange caller; borrowed, it runs 9-12 % faster than that;
+    - the samples taken once per ray call beams.ray_sample_call and the last segment curves.evaluate_call
+      instead of inlined copies (each inlined copy is typed and compiled again).
 
     mesh : CellMesh; prm : RayParams; fld : field.FieldAcc (mode FIELD_OFF: no accumulation), written in
     accumulator slot ``acc``; paths : PathBuffers (ray i's slice); rays : Rays (row i read and written:
@@ -352,7 +368,15 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
     x along d through the cell (exact analytic derivatives there); e = the unit horizontal part of the
     launch direction, fixed for the whole path. beam : beams.Beam (beam field and receiver points; the
     paraxial state of docs/physics.md §10 is carried when beams are on or rays.out_par is asked for).
+    slots : (first, end, n_slots) int.
     """
+    # the inputs' arrays without reference counting (kernels/borrow.py; the caller holds them for the call)
+    mesh = borrow(mesh)
+    prm = borrow(prm)
+    fld = borrow(fld)
+    paths = borrow(paths)
+    rays = borrow(rays)
+    beam = borrow(beam)
     planes = mesh.planes
     neighbours = mesh.neighbours
     neighbour_face = mesh.neighbour_face
@@ -374,419 +398,485 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
     path_t = paths.t
     path_s = paths.s
     path_cap = paths.cap
-    path_base = i * path_cap
-    i_ray = i  # (the name i is reused by the small loops below)
-    x_start = rays.origins[i]
-    d_start = rays.directions[i]
-    cell_start = rays.start_cells[i]
-    refl_cos = rays.refl_cos[i]
-    refl_mat = rays.refl_mat[i]
-    out_state = rays.out_state[i]
-    out_counts = rays.out_counts[i]
-    rf = field.new_ray_field(rays.f_weights[i], refl_cos, refl_mat, i, acc)
-    f_on = fld.mode != field.FIELD_OFF
-    fst = rf.fst
-    x = x_start.copy()
-    d = d_start.copy()
-    norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-    for i in range(3):
-        d[i] /= norm
-    # wind: the ray's horizontal launch azimuth e (the effective-sound-speed approximation keeps it for
-    # the whole path); a vertical launch has no azimuth and sees no wind (u . e = 0 for every horizontal u)
-    e_wind = np.zeros(3)
-    w_grad = np.empty(3)
-    g_eff = np.empty(3)
-    g_tmp = np.empty(3)
-    x_mid = np.empty(3)
-    ray_wind = WIND_NONE
-    if wind_code != WIND_NONE:
-        horizontal = math.sqrt(d[0] * d[0] + d[1] * d[1])
-        if horizontal > 0.0:
-            e_wind[0] = d[0] / horizontal
-            e_wind[1] = d[1] / horizontal
-            ray_wind = wind_code
-    wind_on = ray_wind != WIND_NONE
-    # the wind's parameters and the ray's azimuth as values for the per-crossing calls (wind.wind_values)
-    wp = wind_values(wind_params)
-    ew = (e_wind[0], e_wind[1], e_wind[2])
-    xn = np.empty(3)
-    dn = np.empty(3)
-    xs = np.empty(3)
-    ts = np.empty(3)
-    cs = np.zeros(curves.CS_SIZE)
-    t = 0.0
-    s = 0.0
-    cell = cell_start
-    # paraxial state and beam samples (docs/physics.md §10-11); seg: the segment record (circular, n-linear, wind)
-    parabolic = curve == CURVE_PARABOLIC
-    want_par = rays.out_par.shape[0] > 0
-    deposit_on = beam.grid.mode != beams.BEAM_OFF or beam.pts.xyz.shape[0] > 0
-    par_on = (deposit_on or want_par) and cell_start >= 0
-    par = np.zeros(paraxial.PAR_SIZE)
-    par_tmp = np.zeros(paraxial.PAR_SIZE)
-    p_end = np.zeros(3)
-    seg = np.zeros(paraxial.SEG_SIZE)
-    rates = np.zeros(6)
-    mid_ok = False
-    m_raw = 0.0
-    bray = beams.new_ray(beam.grid.omega.shape[0])
-    if deposit_on and rays.f_weights.shape[1] == bray.amp0.shape[0]:  # beams: f_weights = directivity factors
-        for f in range(bray.amp0.shape[0]):
-            bray.amp0[f] = rays.f_weights[i_ray, f]
-    launch_cos = math.sqrt(d[0] * d[0] + d[1] * d[1])
-    # callee arguments typed int64 / bool, not Literal[int](0) / Literal[bool]: a literal first type (or a
-    # True at one call site, False at another) compiles each callee, ray_sample above all, once more
-    reflections = np.int64(0)
-    yes = np.bool_(True)
-    no = np.bool_(False)
-    p_norm = 1.0
-    if par_on:
-        m_start = _media_at(media_ref, ref_point, gradient, cell, x)
-        if wind_on:
-            m_start = effective_quantity(curve, c_ref, m_start, gradient[cell], ray_wind, wind_params, x, e_wind,
-                                         w_grad, g_eff)  # fmt: skip
-        if m_start > 0.0:
-            p_norm = math.sqrt(m_start) if parabolic else paraxial.refractive_index(curve, m_start, c_ref)
-            paraxial.launch(par, d, p_norm)
-            if deposit_on:
-                beams.ray_sample(
-                    beam,
-                    acc,
-                    bray,
-                    x,
-                    d,
-                    0.0,
-                    0.0,
-                    p_norm / c_ref,
-                    par,
-                    (reflections, refl_cos, refl_mat, launch_cos),
-                    yes,
-                )
-        else:
-            par_on = False
-    deposit_on = deposit_on and par_on
-    # the smooth medium (mesh/hessian.py; beams, or trace(paraxial="smooth")): per-cell Hessians, no face kicks
-    hess = beam.tabs.hessian
-    chord_m = beam.tabs.chord_m  # beam samples at least this far apart (m)
-    smooth = par_on and parabolic and not wind_on and hess.shape[0] == planes.shape[0]
-    g_nb = np.zeros(3)
-    entry = -1
-    crossings = 0
-    nudges = 0
-    nudge_run = 0
-    zero_run = 0
-    slide_face = -1
-    g_slide = np.empty(3)
-    g = np.empty(3)  # the gradient the current cell's curve is set up with
-    prev_cell = -1
-    pp_run = 0
-    steps = 0
-    status = STATUS_RUNNING
-    count = np.int64(0)
-    t_last = 0.0
-    if record:
-        count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
-    if cell < 0:
-        status = STATUS_LOST
-    while status == STATUS_RUNNING:
-        if steps >= max_steps:
-            status = STATUS_STEP_LIMIT
-            break
-        steps += 1
-        m0 = _media_at(media_ref, ref_point, gradient, cell, x)
-        for i in range(3):  # copied, not viewed: a view per step costs two atomic reference-count updates
-            g[i] = gradient[cell, i]
-        if wind_on:
-            # m0, g become the effective medium's traced quantity (exact, at x) and its gradient (at the
-            # middle of the straight chord through the cell: the entry point's own gradient would make the
-            # per-cell model first-order accurate; measured on a log-law wind, errors fell only 3x per 3x
-            # thinner layers, and 10x with the chord middle). The curve, its exit, time_at (which then
-            # integrates 1/c_eff: the travel time in the moving medium), the nudge slowness and the field
-            # deposit all use them. Without wind nothing here changes.
-            # (wind.effective_value on values: wp, ew and 3-tuples, no array in the calls; g_eff is written
-            # only where effective_quantity would write it, state 1)
-            m_raw = m0
-            g_cell = (g[0], g[1], g[2])
-            x_now = (x[0], x[1], x[2])
-            m0 = _effective_into(effective_value(curve, c_ref, m0, g_cell, wind_code, wp, x_now, ew), g_eff)
-            mid_ok = _chord_middle(planes[cell], neighbours[cell], x, d, x_mid)
-            if mid_ok:
-                m_mid = _media_at(media_ref, ref_point, gradient, cell, x_mid)
-                _effective_into(
-                    effective_value(curve, c_ref, m_mid, g_cell, wind_code, wp, (x_mid[0], x_mid[1], x_mid[2]), ew),
-                    g_eff,
-                )
+    n_rays = rays.origins.shape[0]
+    first_slot, end_slot, n_slots = slots
+    for acc in range(first_slot, end_slot):
+        for i_ray in range(acc, n_rays, n_slots):
+            path_base = i_ray * path_cap
+            x_start = rays.origins[i_ray]
+            d_start = rays.directions[i_ray]
+            cell_start = rays.start_cells[i_ray]
+            refl_cos = rays.refl_cos[i_ray]
+            refl_mat = rays.refl_mat[i_ray]
+            out_state = rays.out_state[i_ray]
+            out_counts = rays.out_counts[i_ray]
+            rf = field.new_ray_field(rays.f_weights[i_ray], refl_cos, refl_mat, i_ray, acc)
+            f_on = fld.mode != field.FIELD_OFF
+            fst = rf.fst
+            x = x_start.copy()
+            d = d_start.copy()
+            norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
             for i in range(3):
-                g[i] = g_eff[i]
-        exclude = entry
-        if slide_face >= 0:
-            # slide along the face: the mean gradient of the two sides without its normal part
-            nb_cell = neighbours[cell, slide_face]
-            for i in range(3):
-                g_slide[i] = g[i]
-                if nb_cell >= 0 and not wind_on:
-                    g_slide[i] = 0.5 * (g[i] + gradient[nb_cell, i])
-            gm = (
-                g_slide[0] * planes[cell, slide_face, 0]
-                + g_slide[1] * planes[cell, slide_face, 1]
-                + g_slide[2] * planes[cell, slide_face, 2]
-            )
-            for i in range(3):
-                g[i] = g_slide[i] - gm * planes[cell, slide_face, i]
-            exclude = slide_face
-            slide_face = -1
-        if not curves.setup(curve, m0, g, d, cs):
-            status = STATUS_LOST
-            break
-        if par_on and wind_on:  # the effective medium's derivatives (docs/physics.md §10, wind)
-            paraxial.tangent_derivs(par, d, p_norm, seg)
-            if deposit_on:  # beams drop the gradient terms: d m0 alone, in closed form
-                paraxial.beam_wind_terms(curve, c_ref, (ray_wind, wp, ew), m_raw, gradient[cell], x, par, seg)
-            else:
-                paraxial.wind_terms(
-                    curve,
-                    c_ref,
-                    (ray_wind, wp, ew),
-                    (m_raw, gradient[cell], planes[cell], neighbours[cell], size[cell], mid_ok, x_mid),
-                    x,
-                    d,
-                    par,
-                    seg,
-                )
-            paraxial.finish_terms(par, g, seg)
-            if deposit_on:  # beams: each cell's wind gradient taken as fixed (docs/physics.md §11)
-                paraxial.drop_gradient_terms(seg)
-        if par_on and parabolic:  # the segment restarts from this cell's model at x: p' = n'(x) d (§10)
-            n_new = math.sqrt(m0)
-            if wind_on:
-                paraxial.restart_dm(par, d, p_norm, n_new, seg)
-            elif not smooth:  # smooth medium: n^2 and the constraint 2 p.P = grad n^2 . X carry on as they are
-                paraxial.restart(par, d, p_norm, n_new, g)
-            p_norm = n_new
-        elif par_on:  # circular / n-linear: the segment starts from (x, d); its D_k (docs/physics.md §10)
-            if not wind_on:
-                paraxial.tangent_derivs(par, d, p_norm, seg)
-                paraxial.plain_terms(par, g, seg)
-        cell_size = size[cell]
-        face, param = curves.find_exit(
-            curve, cs, x, d, planes[cell], neighbours[cell], exclude, ON_FACE_REL * cell_size, cell_size
-        )
-        if face < 0:
-            param = curves.interior_step(curve, cs)  # circular: a quarter turn inside the cell
-        if param == 0.0:
-            zero_run += 1
-        if (face < 0 and not math.isfinite(param)) or zero_run > MAX_ZERO_STEPS:
-            # rounding at an edge or vertex left no consistent exit: nudge and re-locate
-            nudges += 1
-            nudge_run += 1
-            zero_run = 0
-            if nudge_run > MAX_NUDGES_IN_A_ROW:
-                status = STATUS_LOST
-                break
-            tf = _tangent_face(planes[cell], neighbours[cell], x, d, size[cell])
-            if tf >= 0:
-                _onto_face(planes[cell, tf], x, d, yes)
-                slide_face = tf
-                continue
-            eta = NUDGE_REL * cell_size
-            t += eta * curves.slowness(curve, m0, c_ref)
-            s += eta
-            cell, status = _nudge(planes, neighbours, cell, x, d, eta)
-            entry = -1
-            continue
-        dt = curves.time_at(curve, cs, param, c_ref)
-        if not (dt >= 0.0):
-            status = STATUS_LOST
-            break
-        if t + dt >= max_time:
-            param_end = curves.param_at_time(curve, cs, max_time - t, param, c_ref)
-            ds = curves.evaluate(curve, cs, x, d, param_end, xn, dn)
-            if par_on:  # HOOK (a), paraxial: the last segment, to max_time
-                if deposit_on and ds > chord_m:  # a call binds ~60 arrays: only for segments that need samples
-                    _beam_segment(
-                        beam,
-                        acc,
-                        bray,
-                        prm,
-                        cs,
-                        x,
-                        d,
-                        (param_end, t, s, ds, cell if smooth else np.int64(-1)),
-                        par,
-                        (par_tmp, p_end, xs, ts, seg, rates, g),
-                        (reflections, refl_cos, refl_mat, launch_cos),
-                    )
-                if smooth:
-                    paraxial.smooth_advance(par, hess, cell, param_end)
-                    p_norm = _p_at(cs, param_end, p_end)
-                elif parabolic:
-                    paraxial.advance(par, param_end)
-                    if wind_on:
-                        paraxial.advance_dg(par, seg, param_end)
-                    p_norm = _p_at(cs, param_end, p_end)
-                else:
-                    paraxial.along_curve(curve, cs, x, d, g, seg, par, param_end, rates)
-                    p_norm = paraxial.to_p(curve, c_ref, cs, g, x, xn, dn, par, seg)
-                if deposit_on:
-                    beams.ray_sample(
-                        beam,
-                        acc,
-                        bray,
-                        xn,
-                        dn,
-                        max_time,
-                        s + ds,
-                        p_norm / c_ref,
-                        par,
-                        (reflections, refl_cos, refl_mat, launch_cos),
-                        no,
-                    )
-            if f_on:
-                field.deposit_segment(
-                    fld,
-                    rf,
-                    reflections,
-                    curve,
-                    c_ref,
-                    cs,
-                    x,
-                    d,
-                    xn,
-                    m0,
-                    g,
-                    field.Segment(param_end, t, s, max_time - t, ds),
-                )
-            if record and max_time - t > dt_sample:
-                count, t_last = _emit_segment(
-                    prm, paths, cs, x, d, param_end, (t, s, max_time, t_last), path_base, count, xs, ts
-                )
-            for i in range(3):
-                x[i] = xn[i]
-                d[i] = dn[i]
-            t = max_time
-            s += ds
-            status = STATUS_TIME_LIMIT  # HOOK (a): the last segment, to max_time
-            break
-        ds = curves.evaluate(curve, cs, x, d, param, xn, dn)
-        if ds > TINY_STEP_REL * cell_size:
-            zero_run = 0
-        elif param != 0.0:
-            zero_run += 1
-        if par_on:  # HOOK (a), paraxial: samples inside the segment, derivatives at its end (on its face)
-            if deposit_on and ds > chord_m:  # (as above)
-                _beam_segment(
-                    beam,
-                    acc,
-                    bray,
-                    prm,
-                    cs,
-                    x,
-                    d,
-                    (param, t, s, ds, cell if smooth else np.int64(-1)),
-                    par,
-                    (par_tmp, p_end, xs, ts, seg, rates, g),
-                    (reflections, refl_cos, refl_mat, launch_cos),
-                )
-            if smooth:
-                paraxial.smooth_advance(par, hess, cell, param)
-                p_norm = _p_at(cs, param, p_end)
-                x_rate = p_norm
-            elif parabolic:
-                paraxial.advance(par, param)
+                d[i] /= norm
+            # wind: the ray's horizontal launch azimuth e (the effective-sound-speed approximation keeps it for
+            # the whole path); a vertical launch has no azimuth and sees no wind (u . e = 0 for every horizontal u)
+            e_wind = np.zeros(3)
+            w_grad = np.empty(3)
+            g_eff = np.empty(3)
+            g_tmp = np.empty(3)
+            x_mid = np.empty(3)
+            ray_wind = WIND_NONE
+            if wind_code != WIND_NONE:
+                horizontal = math.sqrt(d[0] * d[0] + d[1] * d[1])
+                if horizontal > 0.0:
+                    e_wind[0] = d[0] / horizontal
+                    e_wind[1] = d[1] / horizontal
+                    ray_wind = wind_code
+            wind_on = ray_wind != WIND_NONE
+            # the wind's parameters and the ray's azimuth as values for the per-crossing calls (wind.wind_values)
+            wp = wind_values(wind_params)
+            ew = (e_wind[0], e_wind[1], e_wind[2])
+            xn = np.empty(3)
+            dn = np.empty(3)
+            xs = np.empty(3)
+            ts = np.empty(3)
+            cs = np.zeros(curves.CS_SIZE)
+            t = 0.0
+            s = 0.0
+            cell = cell_start
+            # paraxial state and beam samples (docs/physics.md §10-11); seg: the segment record (circular,
+            # n-linear, wind)
+            parabolic = curve == CURVE_PARABOLIC
+            want_par = rays.out_par.shape[0] > 0
+            deposit_on = beam.grid.mode != beams.BEAM_OFF or beam.pts.xyz.shape[0] > 0
+            par_on = (deposit_on or want_par) and cell_start >= 0
+            par = np.zeros(paraxial.PAR_SIZE)
+            par_tmp = np.zeros(paraxial.PAR_SIZE)
+            p_end = np.zeros(3)
+            seg = np.zeros(paraxial.SEG_SIZE)
+            rates = np.zeros(6)
+            mid_ok = False
+            m_raw = 0.0
+            bray = beams.new_ray(beam.grid.omega.shape[0])
+            if deposit_on and rays.f_weights.shape[1] == bray.amp0.shape[0]:  # beams: f_weights = directivity factors
+                for f in range(bray.amp0.shape[0]):
+                    bray.amp0[f] = rays.f_weights[i_ray, f]
+            launch_cos = math.sqrt(d[0] * d[0] + d[1] * d[1])
+            # callee arguments typed int64 / bool, not Literal[int](0) / Literal[bool]: a literal first type (or a
+            # True at one call site, False at another) compiles each callee, ray_sample above all, once more
+            reflections = np.int64(0)
+            yes = np.bool_(True)
+            no = np.bool_(False)
+            p_norm = 1.0
+            if par_on:
+                m_start = _media_at(media_ref, ref_point, gradient, cell, x)
                 if wind_on:
-                    paraxial.advance_dg(par, seg, param)
-                p_norm = _p_at(cs, param, p_end)
-                x_rate = p_norm
-            else:
-                x_rate = paraxial.along_curve(curve, cs, x, d, g, seg, par, param, rates)
-            if face >= 0:
-                # exact derivatives, unless the state feeds beams and the face is slanted: then the kick of a
-                # near-tangential crossing is bounded (constants.BEAM_KICK_BOUND_NZ; docs/physics.md §11)
-                slanted = abs(planes[cell, face, 2]) < BEAM_KICK_BOUND_NZ
-                bound = cell_size / x_rate if deposit_on and slanted else math.inf
-                if smooth and neighbours[cell, face] >= 0:
-                    pass  # the smooth medium has no face here: X_k stay at fixed sigma (mesh/hessian.py)
-                elif smooth:
-                    # a boundary (reflection, exit): onto it with the smooth medium's gradient at the face point
-                    paraxial.smooth_gradient(hess, cell, g, xn, g_nb)
-                    paraxial.onto_face(par, planes[cell, face], p_end, g_nb, bound)
-                elif parabolic:
-                    paraxial.onto_face(par, planes[cell, face], p_end, g, bound)
-                else:
-                    paraxial.onto_face_rates(par, planes[cell, face], rates, bound)
-            if not parabolic:
-                p_norm = paraxial.to_p(curve, c_ref, cs, g, x, xn, dn, par, seg)
-            if face >= 0:
-                if deposit_on and (neighbours[cell, face] < 0 or s + ds - bray.last[beams.S_ARC] >= chord_m):
-                    beams.ray_sample(
-                        beam,
-                        acc,
-                        bray,
-                        xn,
-                        dn,
-                        t + dt,
-                        s + ds,
-                        p_norm / c_ref,
-                        par,
-                        (reflections, refl_cos, refl_mat, launch_cos),
-                        no,
+                    m_start = effective_quantity(
+                        curve, c_ref, m_start, gradient[cell], ray_wind, wind_params, x, e_wind, w_grad, g_eff
                     )
-        if f_on:
-            field.deposit_segment(
-                fld, rf, reflections, curve, c_ref, cs, x, d, xn, m0, g, field.Segment(param, t, s, dt, ds)
-            )
-        if record:
-            if dt > dt_sample:
-                count, t_last = _emit_segment(
-                    prm, paths, cs, x, d, param, (t, s, t + dt, t_last), path_base, count, xs, ts
-                )
-        for i in range(3):
-            x[i] = xn[i]
-            d[i] = dn[i]
-        t += dt
-        s += ds
-        if not (math.isfinite(x[0]) and math.isfinite(x[1]) and math.isfinite(x[2])):
-            status = STATUS_LOST
-            break
-        if record and t - t_last >= dt_sample:
-            count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
-            t_last = t
-        if param > 0.0:
+                if m_start > 0.0:
+                    p_norm = math.sqrt(m_start) if parabolic else paraxial.refractive_index(curve, m_start, c_ref)
+                    paraxial.launch(par, d, p_norm)
+                    if deposit_on:
+                        beams.ray_sample_call(
+                            beam,
+                            acc,
+                            bray,
+                            x,
+                            d,
+                            0.0,
+                            0.0,
+                            p_norm / c_ref,
+                            par,
+                            (reflections, refl_cos, refl_mat, launch_cos),
+                            yes,
+                        )
+                else:
+                    par_on = False
+            deposit_on = deposit_on and par_on
+            # the smooth medium (mesh/hessian.py; beams, or trace(paraxial="smooth")): per-cell Hessians, no face kicks
+            hess = beam.tabs.hessian
+            chord_m = beam.tabs.chord_m  # beam samples at least this far apart (m)
+            smooth = par_on and parabolic and not wind_on and hess.shape[0] == planes.shape[0]
+            g_nb = np.zeros(3)
+            entry = -1
+            crossings = 0
+            nudges = 0
             nudge_run = 0
-        # HOOK (a): a segment inside the cell ended here (x, d, t, s updated; cell not yet changed)
-        if face < 0:
-            entry = -1  # within-cell step (circular quarter turn): same cell, no entry face
-            continue
-        nxt = neighbours[cell, face]
-        if nxt >= 0:
-            dm = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
-            if nxt == prev_cell and abs(dm) <= SLIDE_COS:
-                pp_run += 1
-            else:
-                pp_run = 0
-            if pp_run >= PINGPONG_SLIDE:
-                # zig-zagging across this face: slide along it in the current cell
-                _onto_face(planes[cell, face], x, d, no)
-                slide_face = face
-                pp_run = 0
-                nudges += 1
-                continue
-            prev_cell = cell
-            entry = neighbour_face[cell, face]
-            cell = nxt
-            crossings += 1  # HOOK (b): crossed into the neighbour cell
-        elif nxt == BOUNDARY_REFLECT:
-            dot = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
-            if param == 0.0 and abs(dot) <= GRAZE_COS:
-                # on the boundary, moving along it and curving into it: the limit of vanishing bounces
-                # is creeping along the surface; slide (no reflection: the direction would not change)
-                slide_face = face
-                entry = -1
-                continue
-            if reflections >= max_reflections:
-                status = STATUS_REFLECTION_LIMIT
-                break
-            if f_on:  # time gathered before the reflection belongs to the incoming ray
+            zero_run = 0
+            slide_face = -1
+            g_slide = np.empty(3)
+            g = np.empty(3)  # the gradient the current cell's curve is set up with
+            prev_cell = -1
+            pp_run = 0
+            steps = 0
+            status = STATUS_RUNNING
+            count = np.int64(0)
+            t_last = 0.0
+            if record:
+                count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
+            if cell < 0:
+                status = STATUS_LOST
+            while status == STATUS_RUNNING:
+                if steps >= max_steps:
+                    status = STATUS_STEP_LIMIT
+                    break
+                steps += 1
+                m0 = _media_at(media_ref, ref_point, gradient, cell, x)
+                for i in range(3):  # copied, not viewed: a view per step costs two atomic reference-count updates
+                    g[i] = gradient[cell, i]
+                if wind_on:
+                    # m0, g become the effective medium's traced quantity (exact, at x) and its gradient (at the
+                    # middle of the straight chord through the cell: the entry point's own gradient would make the
+                    # per-cell model first-order accurate; measured on a log-law wind, errors fell only 3x per 3x
+                    # thinner layers, and 10x with the chord middle). The curve, its exit, time_at (which then
+                    # integrates 1/c_eff: the travel time in the moving medium), the nudge slowness and the field
+                    # deposit all use them. Without wind nothing here changes.
+                    # (wind.effective_value on values: wp, ew and 3-tuples, no array in the calls; g_eff is written
+                    # only where effective_quantity would write it, state 1)
+                    m_raw = m0
+                    g_cell = (g[0], g[1], g[2])
+                    x_now = (x[0], x[1], x[2])
+                    m0 = _effective_into(effective_value(curve, c_ref, m0, g_cell, wind_code, wp, x_now, ew), g_eff)
+                    mid_ok = _chord_middle(planes[cell], neighbours[cell], x, d, x_mid)
+                    if mid_ok:
+                        m_mid = _media_at(media_ref, ref_point, gradient, cell, x_mid)
+                        _effective_into(
+                            effective_value(
+                                curve, c_ref, m_mid, g_cell, wind_code, wp, (x_mid[0], x_mid[1], x_mid[2]), ew
+                            ),
+                            g_eff,
+                        )
+                    for i in range(3):
+                        g[i] = g_eff[i]
+                exclude = entry
+                if slide_face >= 0:
+                    # slide along the face: the mean gradient of the two sides without its normal part
+                    nb_cell = neighbours[cell, slide_face]
+                    for i in range(3):
+                        g_slide[i] = g[i]
+                        if nb_cell >= 0 and not wind_on:
+                            g_slide[i] = 0.5 * (g[i] + gradient[nb_cell, i])
+                    gm = (
+                        g_slide[0] * planes[cell, slide_face, 0]
+                        + g_slide[1] * planes[cell, slide_face, 1]
+                        + g_slide[2] * planes[cell, slide_face, 2]
+                    )
+                    for i in range(3):
+                        g[i] = g_slide[i] - gm * planes[cell, slide_face, i]
+                    exclude = slide_face
+                    slide_face = -1
+                if not curves.setup(curve, m0, g, d, cs):
+                    status = STATUS_LOST
+                    break
+                if par_on and wind_on:  # the effective medium's derivatives (docs/physics.md §10, wind)
+                    paraxial.tangent_derivs(par, d, p_norm, seg)
+                    if deposit_on:  # beams drop the gradient terms: d m0 alone, in closed form
+                        paraxial.beam_wind_terms(curve, c_ref, (ray_wind, wp, ew), m_raw, gradient[cell], x, par, seg)
+                    else:
+                        paraxial.wind_terms(
+                            curve,
+                            c_ref,
+                            (ray_wind, wp, ew),
+                            (m_raw, gradient[cell], planes[cell], neighbours[cell], size[cell], mid_ok, x_mid),
+                            x,
+                            d,
+                            par,
+                            seg,
+                        )
+                    paraxial.finish_terms(par, g, seg)
+                    if deposit_on:  # beams: each cell's wind gradient taken as fixed (docs/physics.md §11)
+                        paraxial.drop_gradient_terms(seg)
+                if par_on and parabolic:  # the segment restarts from this cell's model at x: p' = n'(x) d (§10)
+                    n_new = math.sqrt(m0)
+                    if wind_on:
+                        paraxial.restart_dm(par, d, p_norm, n_new, seg)
+                    elif not smooth:  # smooth medium: n^2 and the constraint 2 p.P = grad n^2 . X carry on as they are
+                        paraxial.restart(par, d, p_norm, n_new, g)
+                    p_norm = n_new
+                elif par_on:  # circular / n-linear: the segment starts from (x, d); its D_k (docs/physics.md §10)
+                    if not wind_on:
+                        paraxial.tangent_derivs(par, d, p_norm, seg)
+                        paraxial.plain_terms(par, g, seg)
+                cell_size = size[cell]
+                face, param = curves.find_exit(
+                    curve, cs, x, d, planes[cell], neighbours[cell], exclude, ON_FACE_REL * cell_size, cell_size
+                )
+                if face < 0:
+                    param = curves.interior_step(curve, cs)  # circular: a quarter turn inside the cell
+                if param == 0.0:
+                    zero_run += 1
+                if (face < 0 and not math.isfinite(param)) or zero_run > MAX_ZERO_STEPS:
+                    # rounding at an edge or vertex left no consistent exit: nudge and re-locate
+                    nudges += 1
+                    nudge_run += 1
+                    zero_run = 0
+                    if nudge_run > MAX_NUDGES_IN_A_ROW:
+                        status = STATUS_LOST
+                        break
+                    tf = _tangent_face(planes[cell], neighbours[cell], x, d, size[cell])
+                    if tf >= 0:
+                        _onto_face(planes[cell, tf], x, d, yes)
+                        slide_face = tf
+                        continue
+                    eta = NUDGE_REL * cell_size
+                    t += eta * curves.slowness(curve, m0, c_ref)
+                    s += eta
+                    cell, status = _nudge(planes, neighbours, cell, x, d, eta)
+                    entry = -1
+                    continue
+                dt = curves.time_at(curve, cs, param, c_ref)
+                if not (dt >= 0.0):
+                    status = STATUS_LOST
+                    break
+                if t + dt >= max_time:
+                    param_end = curves.param_at_time(curve, cs, max_time - t, param, c_ref)
+                    ds = curves.evaluate_call(curve, cs, x, d, param_end, xn, dn)
+                    if par_on:  # HOOK (a), paraxial: the last segment, to max_time
+                        if deposit_on and ds > chord_m:  # a call binds ~60 arrays: only for segments that need samples
+                            _beam_segment(
+                                beam,
+                                acc,
+                                bray,
+                                prm,
+                                cs,
+                                x,
+                                d,
+                                (param_end, t, s, ds, cell if smooth else np.int64(-1)),
+                                par,
+                                (par_tmp, p_end, xs, ts, seg, rates, g),
+                                (reflections, refl_cos, refl_mat, launch_cos),
+                            )
+                        if smooth:
+                            paraxial.smooth_advance(par, hess, cell, param_end)
+                            p_norm = _p_at(cs, param_end, p_end)
+                        elif parabolic:
+                            paraxial.advance(par, param_end)
+                            if wind_on:
+                                paraxial.advance_dg(par, seg, param_end)
+                            p_norm = _p_at(cs, param_end, p_end)
+                        else:
+                            paraxial.along_curve(curve, cs, x, d, g, seg, par, param_end, rates)
+                            p_norm = paraxial.to_p(curve, c_ref, cs, g, x, xn, dn, par, seg)
+                        if deposit_on:
+                            beams.ray_sample_call(
+                                beam,
+                                acc,
+                                bray,
+                                xn,
+                                dn,
+                                max_time,
+                                s + ds,
+                                p_norm / c_ref,
+                                par,
+                                (reflections, refl_cos, refl_mat, launch_cos),
+                                no,
+                            )
+                    if f_on:
+                        field.deposit_segment(
+                            fld,
+                            rf,
+                            reflections,
+                            curve,
+                            c_ref,
+                            cs,
+                            x,
+                            d,
+                            xn,
+                            m0,
+                            g,
+                            field.Segment(param_end, t, s, max_time - t, ds),
+                        )
+                    if record and max_time - t > dt_sample:
+                        count, t_last = _emit_segment(
+                            prm, paths, cs, x, d, param_end, (t, s, max_time, t_last), path_base, count, xs, ts
+                        )
+                    for i in range(3):
+                        x[i] = xn[i]
+                        d[i] = dn[i]
+                    t = max_time
+                    s += ds
+                    status = STATUS_TIME_LIMIT  # HOOK (a): the last segment, to max_time
+                    break
+                ds = curves.evaluate(curve, cs, x, d, param, xn, dn)
+                if ds > TINY_STEP_REL * cell_size:
+                    zero_run = 0
+                elif param != 0.0:
+                    zero_run += 1
+                if par_on:  # HOOK (a), paraxial: samples inside the segment, derivatives at its end (on its face)
+                    if deposit_on and ds > chord_m:  # (as above)
+                        _beam_segment(
+                            beam,
+                            acc,
+                            bray,
+                            prm,
+                            cs,
+                            x,
+                            d,
+                            (param, t, s, ds, cell if smooth else np.int64(-1)),
+                            par,
+                            (par_tmp, p_end, xs, ts, seg, rates, g),
+                            (reflections, refl_cos, refl_mat, launch_cos),
+                        )
+                    if smooth:
+                        paraxial.smooth_advance(par, hess, cell, param)
+                        p_norm = _p_at(cs, param, p_end)
+                        x_rate = p_norm
+                    elif parabolic:
+                        paraxial.advance(par, param)
+                        if wind_on:
+                            paraxial.advance_dg(par, seg, param)
+                        p_norm = _p_at(cs, param, p_end)
+                        x_rate = p_norm
+                    else:
+                        x_rate = paraxial.along_curve(curve, cs, x, d, g, seg, par, param, rates)
+                    if face >= 0:
+                        # exact derivatives, unless the state feeds beams and the face is slanted: then the kick of a
+                        # near-tangential crossing is bounded (constants.BEAM_KICK_BOUND_NZ; docs/physics.md §11)
+                        slanted = abs(planes[cell, face, 2]) < BEAM_KICK_BOUND_NZ
+                        bound = cell_size / x_rate if deposit_on and slanted else math.inf
+                        if smooth and neighbours[cell, face] >= 0:
+                            pass  # the smooth medium has no face here: X_k stay at fixed sigma (mesh/hessian.py)
+                        elif smooth:
+                            # a boundary (reflection, exit): onto it with the smooth medium's gradient at the face point
+                            paraxial.smooth_gradient(hess, cell, g, xn, g_nb)
+                            paraxial.onto_face(par, planes[cell, face], p_end, g_nb, bound)
+                        elif parabolic:
+                            paraxial.onto_face(par, planes[cell, face], p_end, g, bound)
+                        else:
+                            paraxial.onto_face_rates(par, planes[cell, face], rates, bound)
+                    if not parabolic:
+                        p_norm = paraxial.to_p(curve, c_ref, cs, g, x, xn, dn, par, seg)
+                    if face >= 0:
+                        if deposit_on and (neighbours[cell, face] < 0 or s + ds - bray.last[beams.S_ARC] >= chord_m):
+                            beams.ray_sample(
+                                beam,
+                                acc,
+                                bray,
+                                xn,
+                                dn,
+                                t + dt,
+                                s + ds,
+                                p_norm / c_ref,
+                                par,
+                                (reflections, refl_cos, refl_mat, launch_cos),
+                                no,
+                            )
+                if f_on:
+                    field.deposit_segment(
+                        fld, rf, reflections, curve, c_ref, cs, x, d, xn, m0, g, field.Segment(param, t, s, dt, ds)
+                    )
+                if record:
+                    if dt > dt_sample:
+                        count, t_last = _emit_segment(
+                            prm, paths, cs, x, d, param, (t, s, t + dt, t_last), path_base, count, xs, ts
+                        )
+                for i in range(3):
+                    x[i] = xn[i]
+                    d[i] = dn[i]
+                t += dt
+                s += ds
+                if not (math.isfinite(x[0]) and math.isfinite(x[1]) and math.isfinite(x[2])):
+                    status = STATUS_LOST
+                    break
+                if record and t - t_last >= dt_sample:
+                    count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
+                    t_last = t
+                if param > 0.0:
+                    nudge_run = 0
+                # HOOK (a): a segment inside the cell ended here (x, d, t, s updated; cell not yet changed)
+                if face < 0:
+                    entry = -1  # within-cell step (circular quarter turn): same cell, no entry face
+                    continue
+                nxt = neighbours[cell, face]
+                if nxt >= 0:
+                    dm = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
+                    if nxt == prev_cell and abs(dm) <= SLIDE_COS:
+                        pp_run += 1
+                    else:
+                        pp_run = 0
+                    if pp_run >= PINGPONG_SLIDE:
+                        # zig-zagging across this face: slide along it in the current cell
+                        _onto_face(planes[cell, face], x, d, no)
+                        slide_face = face
+                        pp_run = 0
+                        nudges += 1
+                        continue
+                    prev_cell = cell
+                    entry = neighbour_face[cell, face]
+                    cell = nxt
+                    crossings += 1  # HOOK (b): crossed into the neighbour cell
+                elif nxt == BOUNDARY_REFLECT:
+                    dot = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]
+                    if param == 0.0 and abs(dot) <= GRAZE_COS:
+                        # on the boundary, moving along it and curving into it: the limit of vanishing bounces
+                        # is creeping along the surface; slide (no reflection: the direction would not change)
+                        slide_face = face
+                        entry = -1
+                        continue
+                    if reflections >= max_reflections:
+                        status = STATUS_REFLECTION_LIMIT
+                        break
+                    if f_on:  # time gathered before the reflection belongs to the incoming ray
+                        field.flush_pending(
+                            fld,
+                            rf,
+                            reflections,
+                            x,
+                            d,
+                            t,
+                            s,
+                            _slowness_at(
+                                curve,
+                                c_ref,
+                                media_ref,
+                                ref_point,
+                                gradient,
+                                cell,
+                                x,
+                                ray_wind,
+                                wind_params,
+                                e_wind,
+                                w_grad,
+                                g_tmp,
+                            ),
+                        )
+                        if face_material[cell, face] > 0:
+                            fst[2] = -1.0  # a soft reflection: re-evaluate the ground factors
+                    if reflections < refl_cos.shape[0]:
+                        refl_cos[reflections] = abs(dot)
+                        refl_mat[reflections] = face_material[cell, face]
+                    for i in range(3):
+                        d[i] -= 2.0 * dot * planes[cell, face, i]
+                    norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+                    for i in range(3):
+                        d[i] /= norm
+                    reflections += 1
+                    entry = face  # HOOK (c): specular reflection done (d reflected)
+                    if par_on:
+                        paraxial.reflect(par, planes[cell, face])
+                        if deposit_on:
+                            beams.ray_sample(
+                                beam,
+                                acc,
+                                bray,
+                                x,
+                                d,
+                                t,
+                                s,
+                                p_norm / c_ref,
+                                par,
+                                (reflections, refl_cos, refl_mat, launch_cos),
+                                yes,
+                            )
+                    if record and t > t_last:
+                        count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
+                        t_last = t
+                else:
+                    status = STATUS_EXITED
+                    break
+            # HOOK (d): the ray has stopped (status set)
+            if f_on and cell >= 0:
                 field.flush_pending(
                     fld,
                     rf,
@@ -810,92 +900,47 @@ def trace_one(mesh, prm, fld, paths, rays, i, acc, beam):
                         g_tmp,
                     ),
                 )
-                if face_material[cell, face] > 0:
-                    fst[2] = -1.0  # a soft reflection: re-evaluate the ground factors
-            if reflections < refl_cos.shape[0]:
-                refl_cos[reflections] = abs(dot)
-                refl_mat[reflections] = face_material[cell, face]
-            for i in range(3):
-                d[i] -= 2.0 * dot * planes[cell, face, i]
-            norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
-            for i in range(3):
-                d[i] /= norm
-            reflections += 1
-            entry = face  # HOOK (c): specular reflection done (d reflected)
-            if par_on:
-                paraxial.reflect(par, planes[cell, face])
-                if deposit_on:
-                    beams.ray_sample(
-                        beam,
-                        acc,
-                        bray,
-                        x,
-                        d,
-                        t,
-                        s,
-                        p_norm / c_ref,
-                        par,
-                        (reflections, refl_cos, refl_mat, launch_cos),
-                        yes,
-                    )
-            if record and t > t_last:
+            if record and (count == 0 or t > t_last):
                 count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
-                t_last = t
-        else:
-            status = STATUS_EXITED
-            break
-    # HOOK (d): the ray has stopped (status set)
-    if f_on and cell >= 0:
-        field.flush_pending(
-            fld,
-            rf,
-            reflections,
-            x,
-            d,
-            t,
-            s,
-            _slowness_at(
-                curve, c_ref, media_ref, ref_point, gradient, cell, x, ray_wind, wind_params, e_wind, w_grad, g_tmp
-            ),
-        )
-    if record and (count == 0 or t > t_last):
-        count = _emit(path_pts, path_t, path_s, path_base, path_cap, count, x, t, s)
-    if deposit_on and s > bray.last[beams.S_ARC]:  # HOOK (d), paraxial: the last chord
-        beams.ray_sample(
-            beam, acc, bray, x, d, t, s, p_norm / c_ref, par, (reflections, refl_cos, refl_mat, launch_cos), no
-        )
-    if want_par:
-        out_par = rays.out_par[i_ray]
-        for k in range(paraxial.PAR_SIZE):
-            out_par[k] = par[k]
-        out_par[paraxial.PAR_SIZE] = p_norm if par_on else math.nan
-    for k in range(3):
-        out_state[STATE_X + k] = x[k]
-        out_state[STATE_D + k] = d[k]
-    out_state[STATE_TIME] = t
-    out_state[STATE_LENGTH] = s
-    out_counts[COUNT_STATUS] = status
-    out_counts[COUNT_REFLECTIONS] = reflections
-    out_counts[COUNT_CROSSINGS] = crossings
-    out_counts[COUNT_NUDGES] = nudges
-    out_counts[COUNT_STEPS] = steps
-    out_counts[COUNT_SAMPLES] = count
+            if deposit_on and s > bray.last[beams.S_ARC]:  # HOOK (d), paraxial: the last chord
+                beams.ray_sample_call(
+                    beam, acc, bray, x, d, t, s, p_norm / c_ref, par, (reflections, refl_cos, refl_mat, launch_cos), no
+                )
+            if want_par:
+                out_par = rays.out_par[i_ray]
+                for k in range(paraxial.PAR_SIZE):
+                    out_par[k] = par[k]
+                out_par[paraxial.PAR_SIZE] = p_norm if par_on else math.nan
+            for k in range(3):
+                out_state[STATE_X + k] = x[k]
+                out_state[STATE_D + k] = d[k]
+            out_state[STATE_TIME] = t
+            out_state[STATE_LENGTH] = s
+            out_counts[COUNT_STATUS] = status
+            out_counts[COUNT_REFLECTIONS] = reflections
+            out_counts[COUNT_CROSSINGS] = crossings
+            out_counts[COUNT_NUDGES] = nudges
+            out_counts[COUNT_STEPS] = steps
+            out_counts[COUNT_SAMPLES] = count
 
 
-@nb.njit(**PARALLEL_FLAGS)
-def trace_rays(mesh, prm, fld, paths, rays, n_slots, b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts):
-    """Trace all rays in parallel (prange over ``n_slots`` accumulator slots, rays interleaved).
+def trace_rays(mesh, prm, fld, paths, rays, n_slots: int, beam: beams.Beam) -> None:
+    """Trace all rays: ``n_slots`` accumulator slots (rays interleaved, :func:`trace_slots`) split into
+    contiguous ranges, one per thread of a pool of ``numba.get_num_threads()`` (at most n_slots) threads.
 
     Ray i owns row i of every ``rays`` array and the path slice ``[i * paths.cap, (i + 1) * paths.cap)``;
-    field accumulator slot ``i % n_slots`` is only written by the one thread running that slot. For a
-    fixed n_slots the results are deterministic. b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts : the beam
-    field and the receiver points (beams.Beam; BEAM_OFF in b_grid.mode and no points: none; passed apart
-    because a parallel kernel does not take nested structs).
+    field accumulator slot ``i % n_slots`` is written only by the thread running that slot. For a fixed
+    n_slots the results are deterministic. beam : beams.Beam (the beam field and the receiver points;
+    BEAM_OFF in beam.grid.mode and no points: none). Python threads, not a prange: a parallel numba caller
+    would compile and link the whole kernel once more (see trace_slots).
     """
-    n = rays.origins.shape[0]
-    for slot in nb.prange(n_slots):
-        # int64, not the loop index itself: numba types the body once with an int64 index and again, in the
-        # parallel gufunc, with a uint64 one, and each signature compiled all of trace_one (~100 s each)
-        s = np.int64(slot)
-        for i in range(s, n, n_slots):
-            trace_one(mesh, prm, fld, paths, rays, i, s, beams.Beam(b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts))
+    n_slots = int(n_slots)
+    threads = max(1, min(n_slots, int(nb.get_num_threads())))
+    bounds = [n_slots * k // threads for k in range(threads + 1)]
+    spans = [(bounds[k], bounds[k + 1], n_slots) for k in range(threads) if bounds[k + 1] > bounds[k]]
+    if len(spans) <= 1:
+        trace_slots(mesh, prm, fld, paths, rays, (0, n_slots, n_slots), beam)
+        return
+    with ThreadPoolExecutor(max_workers=len(spans)) as pool:
+        for done in [pool.submit(trace_slots, mesh, prm, fld, paths, rays, span, beam) for span in spans]:
+            done.result()

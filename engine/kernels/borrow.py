@@ -1,0 +1,54 @@
+"""Borrowed views of a kernel's input structs: the same arrays, without reference counting.
+
+Numba counts references to every array that carries a memory-info pointer (every array that came from Python
+or was allocated in compiled code): binding one to a variable, passing it to a call that is not inlined or
+taking it out of a struct costs an atomic increment and decrement. The traversal's hot paths take the beam's,
+the mesh's and the rays' arrays out of their structs many times per chord sample. A prange caller hides that
+cost: numba's parallel gufunc rebuilds its array arguments without a memory-info pointer, and NRT_incref /
+NRT_decref return at once for those. A kernel called from Python threads (traverse.trace_rays) gets its
+arrays with their memory-info pointers, and measured 10-15 % slower on the README job's beam trace until its
+inputs were borrowed with :func:`borrow`.
+
+``borrow(value)`` returns ``value`` with every array in it (recursively through tuples and named tuples)
+rebuilt without its memory-info and parent pointers: the same data, shape and strides, no reference counted.
+The views are valid while the caller holds the originals, which it does for the whole kernel call; nothing
+may keep them beyond it (the trace kernels write into the arrays and keep no reference).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+__all__ = ["borrow"]
+
+
+def _borrowed(context: Any, builder: Any, ty: types.Type, value: Any) -> Any:
+    """LLVM value of ``ty`` with the memory-info and parent pointers of every array in it set to null."""
+    if isinstance(ty, types.Array):
+        ary = context.make_array(ty)(context, builder, value)
+        ary.meminfo = cgutils.get_null_value(ary.meminfo.type)
+        ary.parent = cgutils.get_null_value(ary.parent.type)
+        return ary._getvalue()
+    if isinstance(ty, types.BaseTuple):
+        out = value
+        for k, member in enumerate(ty.types):
+            item = builder.extract_value(value, k)
+            out = builder.insert_value(out, _borrowed(context, builder, member, item), k)
+        return out
+    return value
+
+
+def _borrow_intrinsic(typingctx: Any, value: types.Type) -> Any:
+    """Typing and code of :func:`borrow`: same type out as in."""
+
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        return _borrowed(context, builder, signature.args[0], args[0])
+
+    return value(value), codegen
+
+
+borrow: Any = intrinsic(_borrow_intrinsic)
