@@ -21,7 +21,7 @@ __version__ = "0.1.0"
 
 
 def _engine_source_key() -> str:
-    """Short hash of the engine source files that hold compiled code (those that mention njit; about
+    """Short hash of the engine source files that hold compiled code (those that mention njit or intrinsic; about
     1 ms): the numba cache folder's name. Plain-Python modules (orchestration, bench, I/O, even those that
     call numba.get_num_threads) do not count, so editing them does not recompile the kernels."""
     engine = Path(__file__).resolve().parent.parent / "engine"
@@ -30,7 +30,7 @@ def _engine_source_key() -> str:
     digest = hashlib.sha1(__version__.encode())
     for path in sorted(engine.rglob("*.py")):
         text = path.read_bytes()
-        if b"njit" in text.lower():
+        if b"njit" in text.lower() or b"intrinsic" in text:  # jitted code, or code generated into it
             digest.update(str(path.relative_to(engine)).encode())
             digest.update(text)
     return digest.hexdigest()[:12]

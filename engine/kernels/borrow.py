@@ -35,7 +35,7 @@ def _borrowed(context: Any, builder: Any, ty: types.Type, value: Any) -> Any:
         return ary._getvalue()
     if isinstance(ty, types.BaseTuple):
         out = value
-        for k, member in enumerate(ty.types):
+        for k, member in enumerate(ty.types):  # type: ignore[attr-defined]  # (every concrete tuple type has .types)
             item = builder.extract_value(value, k)
             out = builder.insert_value(out, _borrowed(context, builder, member, item), k)
         return out
