@@ -19,7 +19,7 @@ large flat triangle), never the start point, so no "last triangle" exclusion is 
 on-face tolerance of a plane moving into it is a hit at parameter 0 (a concave corner's second reflection).
 
 Supported: paths (samples on the true curves), reflections (surfaces and a reflecting top), travel time,
-arc length, crossings, nudges and the status codes of trace_one. Not supported (not needed for the
+arc length, crossings, nudges and the status codes of trace_slots. Not supported (not needed for the
 Appendix C comparison): field accumulation and wind. A ray crossing a BOUNDARY_SOLID face leaked through a
 surface and ends as STATUS_LOST.
 """

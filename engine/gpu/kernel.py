@@ -8,12 +8,12 @@ So this kernel calls the CPU traversal's named steps themselves: the curve inter
 (kernels/curves.py: setup, find_exit, time_at, param_at_time, evaluate, interior_step, slowness, and through
 them parabolic.py, circular.py, nlinear.py, roots.py), the cell model and robustness steps of
 kernels/traverse.py (_media_at, _chord_middle, _tangent_face, _walk, _nudge, _onto_face) and the wind
-(wind.effective_quantity). What is written here is only the per-ray loop of ``traverse.trace_one`` that ties
+(wind.effective_quantity). What is written here is only the per-ray loop of ``traverse.trace_slots`` that ties
 them together, with its paraxial and beam hooks (kernels/paraxial.py: launch, restart, advance, onto_face,
 reflect; the beam samples of engine/gpu/beam_device.py, which calls kernels/beams.py's steps and accumulates
-with atomics) and without its voxel-field and path-recording hooks (``trace_one`` itself allocates numpy
+with atomics) and without its voxel-field and path-recording hooks (``trace_slots`` itself allocates numpy
 arrays, which a CUDA kernel cannot: its scratch arrays become ``cuda.local.array`` here, the per-band beam
-amplitudes rows of a global beam_device.BeamScratch). The loop is statement for statement trace_one's, so the
+amplitudes rows of a global beam_device.BeamScratch). The loop is statement for statement trace_slots', so the
 same rays take the same steps and deposit the same chords.
 
 Kernel contract as on the CPU: ``trace_rays_cuda[blocks, threads](mesh, prm, rays, b_grid, b_acc, b_tabs,
@@ -91,7 +91,7 @@ THREADS_PER_BLOCK = 128  # rays per block: the loop is register-heavy, small blo
 @cuda.jit
 def trace_rays_cuda(mesh, prm, rays, b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts, b_scr):  # noqa: C901
     """Trace ray ``cuda.grid(1)`` of ``rays`` through ``mesh`` to its end state, depositing its beams (see the
-    module docstring; trace_one's loop, kept as one function as on the CPU)."""
+    module docstring; trace_slots' per-ray loop, kept as one function as on the CPU)."""
     i_ray = cuda.grid(1)
     if i_ray >= rays.origins.shape[0]:
         return
@@ -146,7 +146,7 @@ def trace_rays_cuda(mesh, prm, rays, b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts
     t = 0.0
     s = 0.0
     cell = rays.start_cells[i_ray]
-    # paraxial state and beam samples (docs/physics.md §10-11; parabolic curve), as in trace_one
+    # paraxial state and beam samples (docs/physics.md §10-11; parabolic curve), as in trace_slots
     beam = beams.Beam(b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts)
     deposit_on = b_grid.mode != beams.BEAM_OFF or b_pts.xyz.shape[0] > 0
     par_on = deposit_on and cell >= 0
@@ -274,7 +274,7 @@ def trace_rays_cuda(mesh, prm, rays, b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts
         if not curves.setup(curve, m0, g, d, cs):
             status = STATUS_LOST
             break
-        if par_on and wind_on:  # beams with wind: d m0 in closed form, each cell's gradient fixed (trace_one)
+        if par_on and wind_on:  # beams with wind: d m0 in closed form, each cell's gradient fixed (trace_slots)
             paraxial.tangent_derivs(par, d, p_norm, seg)
             paraxial.beam_wind_terms(curve, c_ref, (ray_wind, wind_params, e_wind), m_raw, gradient[cell], x, par,
                                      seg)  # fmt: skip
@@ -284,7 +284,7 @@ def trace_rays_cuda(mesh, prm, rays, b_grid, b_acc, b_tabs, p_grid, p_acc, b_pts
             n_new = math.sqrt(m0)
             if wind_on:
                 paraxial.restart_dm(par, d, p_norm, n_new, seg)
-            elif not smooth:  # smooth medium: the state carries on as it is (traverse.trace_one)
+            elif not smooth:  # smooth medium: the state carries on as it is (traverse.trace_slots)
                 paraxial.restart(par, d, p_norm, n_new, g)
             p_norm = n_new
         cell_size = size[cell]

@@ -1,6 +1,6 @@
 """A lean traversal for the common plain trace: parabolic curve, no wind, no field, no paths, no paraxial state.
 
-The generic kernel (traverse.trace_one) serves every curve kind, field, beam, path recording and wind
+The generic kernel (traverse.trace_slots) serves every curve kind, field, beam, path recording and wind
 with one loop and runtime switches; a job that needs none of them still pays for the switches, the
 runtime curve dispatch, the per-cell array views (two atomic reference-count updates each) and the
 compile time of all of it. This module is the same walk (Algorithm 1, physics.md section 5) written
@@ -204,7 +204,7 @@ def _lane_take(lane, next_ray, hi, rays_in, rays_out, fst, ist):
 def trace_block_lanes(packed, mesh, c_ref, limits, origins, directions, cells, out_state, out_counts, lo, hi):
     """Trace rays lo..hi-1 in ``lanes`` interleaved lanes on packed cell records (mesh/packed.py).
 
-    The generic walk (traverse.trace_one) for the plain parabolic trace, one segment step of one ray at a time,
+    The generic walk (traverse.trace_slots) for the plain parabolic trace, one segment step of one ray at a time,
     taking the lanes in turn: when a ray's exit face is known its next cell's record is prefetched
     (``prefetch`` > 0) and the other lanes' steps run while it arrives, so the walk waits on memory far less
     than one ray alone, which knows its next cell only at the end of each step. Every lane does the generic

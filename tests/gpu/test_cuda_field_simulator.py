@@ -4,7 +4,7 @@ CASE`` in a subprocess with NUMBA_ENABLE_CUDASIM=1 (the flag never reaches the r
 ``run_job`` with ``solver.device`` cpu and cuda, A-LD slabs over soft ground with ground reflections, coherent and
 incoherent, a field grid and two receivers.
 
-What must hold: the ray states bit-identical (the same loop as trace_one); the same points reached by the same
+What must hold: the ray states bit-identical (the same loop as trace_slots); the same points reached by the same
 number of beams; every linear level (|p|^2 and energies per band, 10^(-TL/10)) within LEVEL_REL of the CPU's, the
 coherent pressures within LEVEL_REL of their largest magnitude. Under the simulator every term is the CPU's own
 arithmetic, so what differs is the order of the sums alone: the CPU adds rays into n_threads slots in ray order

@@ -5,7 +5,7 @@ traced with the circular curve in a log-law wind, tetrahedra (3D fan, reflection
 (the example hill, wind, reflections off the terrain): every final ray state (position, direction, travel
 time, arc length, status, reflections, crossings, nudges, first reflection's material) must be bit-identical.
 Under the simulator the kernel's shared steps run as the same CPU code, so bit identity is the right bar here;
-what it tests is that the CUDA loop takes the same steps as trace_one. A real device is tested in
+what it tests is that the CUDA loop takes the same steps as trace_slots. A real device is tested in
 tests/gpu/test_cuda_device.py (skipped without one).
 """
 
