@@ -351,10 +351,10 @@ def trace_slots(mesh, prm, fld, paths, rays, slots, beam):
     thread (the kernel releases the GIL; :func:`trace_rays` runs disjoint slot ranges on a thread pool), and
     only it writes slot acc's accumulators, so for a fixed n_slots the results do not depend on the threads.
     Why this shape (measured on the README job's miniature from an empty cache, and on its reduced copy,
-    181 x 61 rays, one thread; docs/physics.md §17):
+    181 x 61 rays, one thread; docs/physics.md §9):
     - the loop over rays lives here, not in a caller: a caller links this kernel's machine code into its own
       and LLVM optimises and emits all of it again (a prange caller did that about four times over, through
-      its gufunc: 17-20 s of the first run's ~100 s of compilation);
+      its gufunc: 17-20 s of the first run's ~120 s of compilation);
     - the inputs are borrowed (kernels/borrow.py): without that, every array taken out of the structs in the
       hot paths was reference counted with atomics (a prange gufunc's arguments are not), and the beam trace
       ran 15 % slower than under the prange caller; borrowed, it runs 9-12 % faster than that;
