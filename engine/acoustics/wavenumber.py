@@ -46,7 +46,8 @@ POINTS_PER_WAVELENGTH = 12.0  # Numerov height step lambda / 12
 PERIOD_FACTOR = 4.0  # FFT period / largest range
 EPS_PERIOD = 5.0  # contour offset x period (3 / 5 / 10 / 20: deepest 1 kHz level 122.0 / 121.8 / 121.2 / 136 dB)
 LAYER_STRENGTH = 1.0  # absorbing layer: k^2 (1 + i A u^2), u = 0..1 over the layer
-_RESCALE_EVERY = 40  # rows between renormalisations of phi_> above the stored heights
+_RESCALE_EVERY = 40  # rows between renormalisations of phi_> above the stored heights, and checks within them
+RENORMALISE_ABOVE = 1e100  # |phi| beyond which the recursions renormalise within the stored heights
 
 SoundSpeedOfHeight = Callable[[np.ndarray], np.ndarray]
 
@@ -74,6 +75,23 @@ class FfpField:
             row = self.psi[k]
             out[sel] = np.interp(r[sel], self.ranges_m, row.real) + 1j * np.interp(r[sel], self.ranges_m, row.imag)
         return out * np.exp(1j * self.k0 * r)
+
+
+def _renormalise(prev: np.ndarray, cur: np.ndarray, stored: dict[int, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """Divide a Numerov recursion's last two rows, and the rows it has stored, by |cur| wherever that exceeds
+    RENORMALISE_ABOVE (per wavenumber, in place for the stored rows). Over the stored heights an evanescent
+    wavenumber's solution grows like exp(sqrt(kappa^2 - k^2) z) and overflowed to inf (then nan) for receivers
+    tens of metres above the source at a few hundred Hz: a map's whole band came out nan. The Green's function
+    takes phi_< and phi_> only in ratios to their own rows at the source (the Wronskian), so one factor per
+    wavenumber on every row of a solution cancels; rows far below the growth underflow to 0, where the field
+    they carry is below double precision anyway. Below the threshold nothing is touched (bit for bit)."""
+    big = np.abs(cur) > RENORMALISE_ABOVE
+    if not big.any():
+        return prev, cur
+    s = np.where(big, np.abs(cur), 1.0)
+    for row in stored.values():
+        row /= s
+    return prev / s, cur / s
 
 
 def _grid(frequency_hz: float, c_ground: float, zs: float, z_top: float) -> tuple[float, int]:
@@ -151,8 +169,10 @@ def ffp_field(
             1.0 + cc * (k2[j + 1] - kap2)
         )
         pm, pc = pc, pn
+        if j % _RESCALE_EVERY == 0:  # evanescent wavenumbers grow without bound: renormalise (_renormalise)
+            pm, pc = _renormalise(pm, pc, up)
         if j + 1 in keep:
-            up[j + 1] = pn
+            up[j + 1] = pc
     # phi_> down from the top of the layer (phi = 0 there)
     dn: dict[int, np.ndarray] = {}
     p_next = np.zeros(n_k, complex)
@@ -166,6 +186,8 @@ def ffp_field(
         p_next, p_cur = p_cur, p_prev
         j -= 1
         if j <= j_hi:
+            if j % _RESCALE_EVERY == 0:
+                p_next, p_cur = _renormalise(p_next, p_cur, dn)
             if j in keep:
                 dn[j] = p_cur
         elif j % _RESCALE_EVERY == 0:

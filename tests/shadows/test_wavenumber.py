@@ -43,3 +43,21 @@ def test_bad_arguments_and_the_cost_measure():
         100.0, 343.0, 2.0, 1000.0, 100.0
     )
     assert ffp_cells(200.0, 343.0, 2.0, 1000.0, 100.0) > 3.9 * ffp_cells(100.0, 343.0, 2.0, 1000.0, 100.0)
+
+
+def test_receivers_tens_of_metres_above_the_source_stay_finite():
+    """Evanescent wavenumbers grow like exp(sqrt(kappa^2 - k^2) z) over the stored heights: at 646 Hz in a
+    log profile, receivers up to 36 m made both recursions overflow and the whole field nan (a job's band map
+    came out nan). Oracle: the same integral with the low receivers alone (nothing above 16 m to grow over)
+    must give their pressures unchanged, and every pressure must be finite."""
+    c = lambda z: 340.0 + np.log1p(np.asarray(z, float))  # noqa: E731 - the log profile, b = 1 m/s, z_g = 1 m
+    heights = np.array([1.0, 6.0, 11.0, 16.0, 21.0, 26.0, 31.0, 36.0])
+    r = np.array([20.0, 60.0, 150.0])
+    for f in (646.0, 694.0):
+        full = ffp_field(f, c, None, 1.5, heights, 191.1, 92.0)
+        low = ffp_field(f, c, None, 1.5, heights[:4], 191.1, 92.0)
+        assert np.all(np.isfinite(full.psi))
+        p_full = np.array([full.pressure(r, np.full(r.size, i)) for i in range(heights.size)])
+        p_low = np.array([low.pressure(r, np.full(r.size, i)) for i in range(4)])
+        np.testing.assert_allclose(p_full[:4], p_low, rtol=1e-9)
+        assert np.all(np.abs(p_full) > 0.0)
