@@ -30,7 +30,8 @@ MAX_FIELD_POINTS = 4  # field grid points per axis in a miniature
 
 def miniature(spec: dict[str, Any]) -> dict[str, Any]:
     """A copy of job JSON ``spec`` with at most MAX_COUNT elevations and azimuths, a field grid of at most
-    MAX_FIELD_POINTS per axis, outputs kept; the same types reach every kernel."""
+    MAX_FIELD_POINTS per axis over the same extent (first and last points kept), outputs kept; the same types
+    reach every kernel."""
     out: dict[str, Any] = json.loads(json.dumps(spec))
     rays = out.get("rays") or {}
     for axis in ("elevation_deg", "azimuth_deg"):
@@ -38,7 +39,16 @@ def miniature(spec: dict[str, Any]) -> dict[str, Any]:
             rays[axis]["count"] = min(int(rays[axis]["count"]), MAX_COUNT)
     fld = out.get("field")
     if isinstance(fld, dict) and "shape" in fld:
-        fld["shape"] = [min(int(n), MAX_FIELD_POINTS) for n in fld["shape"]]
+        full = [int(n) for n in fld["shape"]]
+        fld["shape"] = [min(n, MAX_FIELD_POINTS) for n in full]
+        spacing = fld.get("spacing")
+        if isinstance(spacing, list) and len(spacing) == len(full):
+            # the same extent, fewer points: the stages that decide from where the grid lies (the refractive
+            # shadow's azimuth bins) decide as for the full job, instead of running (and compiling) for a small one
+            fld["spacing"] = [
+                float(h) * (n - 1) / (m - 1) if n > m > 1 else h
+                for h, n, m in zip(spacing, full, fld["shape"], strict=True)
+            ]
     out["name"] = f"warmup-{out.get('name', 'job')}"
     return out
 

@@ -23,6 +23,13 @@ def test_miniature_shrinks_the_fan_and_the_grid_only() -> None:
     mini = miniature(JOB)
     assert mini["rays"]["elevation_deg"]["count"] == MAX_COUNT
     assert mini["field"]["shape"] == [MAX_FIELD_POINTS, 3, MAX_FIELD_POINTS]
+
+    # the same extent: first and last points where the full grid has them
+    def last(f):
+        return [o + (n - 1) * h for o, n, h in zip(f["origin"], f["shape"], f["spacing"], strict=True)]
+
+    assert mini["field"]["origin"] == JOB["field"]["origin"]
+    assert last(mini["field"]) == [float(v) for v in last(JOB["field"])]
     assert mini["profile"] == JOB["profile"] and mini["outputs"] == JOB["outputs"]
     assert JOB["rays"]["elevation_deg"]["count"] == 41  # the input is not changed
 
