@@ -79,7 +79,7 @@ class FfpField:
 
 def _renormalise(prev: np.ndarray, cur: np.ndarray, stored: dict[int, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
     """Divide a Numerov recursion's last two rows, and the rows it has stored, by |cur| wherever that exceeds
-    RENORMALISE_ABOVE (per wavenumber, in place for the stored rows). Over the stored heights an evanescent
+    RENORMALISE_ABOVE (per wavenumber; the stored rows are replaced). Over the stored heights an evanescent
     wavenumber's solution grows like exp(sqrt(kappa^2 - k^2) z) and overflowed to inf (then nan) for receivers
     tens of metres above the source at a few hundred Hz: a map's whole band came out nan. The Green's function
     takes phi_< and phi_> only in ratios to their own rows at the source (the Wronskian), so one factor per
@@ -89,8 +89,8 @@ def _renormalise(prev: np.ndarray, cur: np.ndarray, stored: dict[int, np.ndarray
     if not big.any():
         return prev, cur
     s = np.where(big, np.abs(cur), 1.0)
-    for row in stored.values():
-        row /= s
+    for key in stored:  # new arrays, not in place: prev is often a stored row itself (it would be divided twice)
+        stored[key] = stored[key] / s
     return prev / s, cur / s
 
 
