@@ -56,8 +56,6 @@ from functools import cache
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.integrate import simpson
-from scipy.interpolate import CubicSpline
 from scipy.special import ai_zeros, airy, airye, hankel1e
 
 __all__ = [
@@ -466,6 +464,8 @@ def _profile_modes(
     ai, aip, _, _ = airy(v_t)
     tail = pt / ai
     d = _E_M60 * np.cbrt(gt)
+    from scipy.integrate import simpson  # here, not at import: scipy.integrate pulls scipy.optimize (~0.14 s)
+
     inner = np.array([simpson(phi[: i + 1, n] ** 2, x=z[: i + 1]) for n, i in enumerate(idx)])
     outer = -(tail * tail) * (v_t * ai * ai - aip * aip) / d
     return ProfileModes(
@@ -501,6 +501,8 @@ def profile_modes(
 def profile_height_functions(modes: ProfileModes, heights: ArrayLike) -> np.ndarray:
     """phi_n(h) at heights h (m, (n,)) -> (n, m) complex: cubic interpolation of the Numerov values
     below each mode's top, its Airy tail above."""
+    from scipy.interpolate import CubicSpline  # here, not at import (see _profile_modes)
+
     h = np.asarray(heights, float).ravel()
     inner = CubicSpline(modes.z, modes.phi, axis=0)(np.minimum(h, modes.z[-1]))  # (n, m)
     dz = np.maximum(h[:, None] - modes.top[None, :], 0.0)
