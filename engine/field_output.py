@@ -6,9 +6,10 @@ Grid convention (both writers): node (i, j, k) of a grid with ``shape = (nx, ny,
 data with x fastest (point id ``i + nx (j + ny k)``); :func:`write_field_vti` does that reordering.
 
 Files are written to a temporary file in the destination folder and moved into place with
-``os.replace``, so a failed write never leaves a partial file. pyvista and matplotlib are imported
-lazily; the PNG writer uses ``matplotlib.figure.Figure`` with the Agg canvas directly and never touches
-pyplot or the global backend; its panels are placed by :func:`bentray.engine.preview_layout.place_panels`.
+``os.replace``, so a failed write never leaves a partial file. VTK (:mod:`bentray.engine.vti_writer`)
+and matplotlib are imported lazily; the PNG writer uses ``matplotlib.figure.Figure`` with the Agg canvas
+directly and never touches pyplot or the global backend; its panels are placed by
+:func:`bentray.engine.preview_layout.place_panels`.
 """
 
 from __future__ import annotations
@@ -128,23 +129,24 @@ def write_field_vti(
     -------
     The destination path.
     """
-    import pyvista as pv
+    from bentray.engine.vti_writer import write_image_data
 
     o, s, shp = _check_grid(origin, spacing, shape)
     if not point_arrays:
         raise ValueError("point_arrays must hold at least one array")
-    grid = pv.ImageData(dimensions=shp, spacing=tuple(s), origin=tuple(o))
+    points = {}
     for name, values in point_arrays.items():
         if not isinstance(name, str) or not name:
             raise ValueError("point array names must be non-empty strings")
-        grid.point_data[name] = _vtk_order(name, values, shp)
+        points[name] = _vtk_order(name, values, shp)
+    fields = {}
     for name, value in (field_data or {}).items():
         if not isinstance(name, str) or not name:
             raise ValueError("field data names must be non-empty strings")
-        grid.field_data[name] = _field_value(name, value)
+        fields[name] = _field_value(name, value)
     path = Path(path)
-    with _atomic_path(path, path.suffix or ".vti") as tmp:
-        grid.save(str(tmp), binary=True, compression="lz4")  # README job: 0.18 s to write vs 0.98 s zlib, 2.8 vs 2.5 MB
+    with _atomic_path(path, path.suffix or ".vti") as tmp:  # lz4: README job 0.18 s vs 0.98 s zlib, 2.8 vs 2.5 MB
+        write_image_data(tmp, shp, s, o, points, fields)
     return path
 
 
