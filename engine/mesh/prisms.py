@@ -182,32 +182,68 @@ def face_vertices(tets: np.ndarray) -> np.ndarray:
     return faces
 
 
+# Buckets of faces sharing their lowest vertex are paired by comparing all pairs up to this size (about 20
+# faces in a terrain mesh), by a sort of their keys above it (a vertex with a large fan).
+PAIR_SCAN_MAX = 64
+
+
+@nb.njit(**NJIT_FLAGS)
+def _pair(i, j, nb_out, nf_out):  # pragma: no cover - compiled
+    """Record faces i and j (flat ids 4 cell + face) as partners; 1 if either already had one, else 0."""
+    extra = 1 if nb_out[i] >= 0 or nb_out[j] >= 0 else 0
+    nb_out[i], nf_out[i] = j // 4, j % 4
+    nb_out[j], nf_out[j] = i // 4, i % 4
+    return extra
+
+
+@nb.njit(**NJIT_FLAGS)
+def _pair_faces(f, n_points, nb_out, nf_out, scan_max):  # pragma: no cover - compiled
+    """Pair the sorted faces f (F, 3) bucketed by their lowest vertex (counting sort); returns the number
+    of faces that found a second partner (0 unless a face is shared by more than two cells)."""
+    start = np.zeros(n_points + 1, dtype=np.int64)
+    for i in range(f.shape[0]):
+        start[f[i, 0] + 1] += 1
+    for v in range(n_points):
+        start[v + 1] += start[v]
+    fill = start[:-1].copy()
+    face = np.empty(f.shape[0], dtype=np.int64)  # bucketed: face id and its key (b, c) as b n_points + c
+    key = np.empty(f.shape[0], dtype=np.int64)
+    for i in range(f.shape[0]):
+        p = fill[f[i, 0]]
+        face[p], key[p] = i, f[i, 1] * n_points + f[i, 2]
+        fill[f[i, 0]] += 1
+    extra = 0
+    for v in range(n_points):
+        lo, hi = start[v], start[v + 1]
+        if hi - lo > scan_max:
+            order = lo + np.argsort(key[lo:hi], kind="mergesort")
+            for p in range(len(order) - 1):
+                if key[order[p]] == key[order[p + 1]]:
+                    extra += _pair(face[order[p]], face[order[p + 1]], nb_out, nf_out)
+            continue
+        for p in range(lo, hi):
+            for q in range(p + 1, hi):  # the first later copy; a third copy finds q already paired
+                if key[q] == key[p]:
+                    extra += _pair(face[p], face[q], nb_out, nf_out)
+                    break
+    return extra
+
+
 def match_faces(faces: np.ndarray, n2: int, n_points: int) -> tuple[np.ndarray, np.ndarray]:
     """Face hash: (neighbours, neighbour_face), both (T, 4) int64, -1 where a face has no partner.
 
-    Key of a sorted face (a, b, c): a (2 n2)^2 + (b - a) 2 n2 + (c - a), unique because a face spans at most
-    two consecutive levels (b - a, c - a < 2 n2); lexicographic sort when that would overflow int64.
-    Raises MeshBuildError if a face is shared by more than two cells.
+    faces : (T, 4, 3) sorted vertex ids (face_vertices), ids < n_points; n2 (the 2D vertex count) is kept
+    for the callers. The faces are bucketed by their lowest vertex and paired within a bucket (compiled;
+    the pairing is unique, so the tables are those of a sort on the whole key). Raises MeshBuildError if a
+    face is shared by more than two cells.
     """
-    f = faces.reshape(-1, 3)
-    w = 2 * n2
-    if n_points * float(w) ** 2 < 2.0**62:
-        key = f[:, 0] * (w * w) + (f[:, 1] - f[:, 0]) * w + (f[:, 2] - f[:, 0])
-        order = np.argsort(key)
-        ks = key[order]
-        same = ks[1:] == ks[:-1]
-    else:
-        order = np.lexsort((f[:, 2], f[:, 1], f[:, 0]))
-        fs = f[order]
-        same = np.all(fs[1:] == fs[:-1], axis=1)
-    if np.any(same[1:] & same[:-1]):
-        raise MeshBuildError("a face is shared by more than two cells")
-    i = np.flatnonzero(same)
-    s1, s2 = order[i], order[i + 1]
+    if n_points >= 2**31:
+        raise ValueError("match_faces: face keys b n_points + c need n_points < 2**31")
+    f = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
     nb = np.full(len(f), -1, dtype=np.int64)
     nf = np.full(len(f), -1, dtype=np.int64)
-    nb[s1], nf[s1] = s2 // 4, s2 % 4
-    nb[s2], nf[s2] = s1 // 4, s1 % 4
+    if _pair_faces(f, int(n_points), nb, nf, PAIR_SCAN_MAX):
+        raise MeshBuildError("a face is shared by more than two cells")
     return nb.reshape(-1, 4), nf.reshape(-1, 4)
 
 
@@ -233,15 +269,13 @@ def _planes_quality(points, tets, faces, planes, area, vol, longest, dihedral): 
             planes[t, f, 2] = sign * nz
             planes[t, f, 3] = sign * h
             area[t, f] = 0.5 * norm
-        p0 = points[tets[t, 0]]
-        e = np.empty((3, 3))
-        for i in range(3):
-            for k in range(3):
-                e[i, k] = points[tets[t, i + 1], k] - p0[k]
-        vol[t] = (e[0, 0] * (e[1, 1] * e[2, 2] - e[1, 2] * e[2, 1]) - e[0, 1] * (e[1, 0] * e[2, 2] - e[1, 2] * e[2, 0])
-                  + e[0, 2] * (e[1, 0] * e[2, 1] - e[1, 1] * e[2, 0])) / 6.0  # fmt: skip
+        v0, v1, v2, v3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
+        e00, e01, e02 = points[v1, 0] - points[v0, 0], points[v1, 1] - points[v0, 1], points[v1, 2] - points[v0, 2]
+        e10, e11, e12 = points[v2, 0] - points[v0, 0], points[v2, 1] - points[v0, 1], points[v2, 2] - points[v0, 2]
+        e20, e21, e22 = points[v3, 0] - points[v0, 0], points[v3, 1] - points[v0, 1], points[v3, 2] - points[v0, 2]
+        vol[t] = (e00 * (e11 * e22 - e12 * e21) - e01 * (e10 * e22 - e12 * e20) + e02 * (e10 * e21 - e11 * e20)) / 6.0
         lmax = 0.0
-        dmin = 180.0
+        cmax = -math.inf  # the smallest dihedral angle is acos of the largest cosine (acos decreases)
         for i in range(4):
             for j in range(i + 1, 4):
                 pi = points[tets[t, i]]
@@ -250,9 +284,9 @@ def _planes_quality(points, tets, faces, planes, area, vol, longest, dihedral): 
                 lmax = max(lmax, d)
                 c = -(planes[t, i, 0] * planes[t, j, 0] + planes[t, i, 1] * planes[t, j, 1]
                       + planes[t, i, 2] * planes[t, j, 2])  # fmt: skip
-                dmin = min(dmin, math.degrees(math.acos(min(1.0, max(-1.0, c)))))
+                cmax = max(cmax, c)
         longest[t] = lmax
-        dihedral[t] = dmin
+        dihedral[t] = min(180.0, math.degrees(math.acos(min(1.0, max(-1.0, cmax)))))
 
 
 @nb.njit(**NJIT_FLAGS)

@@ -1,7 +1,8 @@
-"""Compiled mesh kernels against their numpy oracles (engine/mesh/lsq_kernel.py, gradients.py).
+"""Compiled mesh kernels against their numpy oracles (engine/mesh/lsq_kernel.py, gradients.py, prisms.py).
 
 References: the numpy formulas they replace, written out here (means, normal-equation einsums, LAPACK
-eigvalsh decisions) and ``gradients.lsq_gradients`` itself; a linear field's exact gradient.
+eigvalsh decisions, a lexicographic sort for the face pairing, numpy dihedral angles and volumes),
+``gradients.lsq_gradients`` itself, scipy's Delaunay neighbours and a linear field's exact gradient.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ import numpy as np
 import pytest
 from scipy.spatial import Delaunay
 
+from bentray.engine.errors import MeshBuildError
 from bentray.engine.mesh.gradients import LSQ_RCOND_MIN, cell_media, lsq_gradients, lsq_gradients_compiled
 from bentray.engine.mesh.lsq_kernel import (
     EIG_MARGIN,
@@ -21,6 +23,7 @@ from bentray.engine.mesh.lsq_kernel import (
     cell_centroids,
     lsq_systems,
 )
+from bentray.engine.mesh.prisms import _pair_faces, face_planes, face_vertices, match_faces
 
 G = np.array([0.3, -0.2, 0.5])
 
@@ -137,3 +140,55 @@ def test_closed_form_eigenvalues_are_within_a_hundredth_of_the_margin():
     got = np.array([_sym3_extreme_eigenvalues(m[0, 0], m[0, 1], m[0, 2], m[1, 1], m[1, 2], m[2, 2]) for m in a])
     err = np.abs(got - ref[:, [0, 2]]).max(axis=1) / ref[:, 2]
     assert err.max() <= EIG_MARGIN / 100, err.max()
+
+
+def oracle_pairs(faces):
+    """Neighbour and neighbour-face tables (T, 4) from a lexicographic sort of the sorted faces."""
+    f = faces.reshape(-1, 3)
+    order = np.lexsort((f[:, 2], f[:, 1], f[:, 0]))
+    same = np.flatnonzero(np.all(f[order][1:] == f[order][:-1], axis=1))
+    nb = np.full(len(f), -1)
+    nf = np.full(len(f), -1)
+    s1, s2 = order[same], order[same + 1]
+    nb[s1], nf[s1], nb[s2], nf[s2] = s2 // 4, s2 % 4, s1 // 4, s1 % 4
+    return nb.reshape(-1, 4), nf.reshape(-1, 4)
+
+
+def test_match_faces_pairs_faces_as_a_sort_does(random_mesh):
+    pts, tets, nb_scipy = random_mesh
+    faces = face_vertices(tets)
+    nb, nf = match_faces(faces, 1, len(pts))
+    nb0, nf0 = oracle_pairs(faces)
+    np.testing.assert_array_equal(nb, nb0)
+    np.testing.assert_array_equal(nf, nf0)
+    np.testing.assert_array_equal(nb, nb_scipy)  # scipy's neighbour i is opposite vertex i, as here
+    with pytest.raises(MeshBuildError, match="more than two cells"):
+        match_faces(face_vertices(np.vstack([tets, tets[:1]])), 1, len(pts))
+    # large buckets (a vertex's fan) are paired by a sort of their keys: force it for every bucket
+    f = faces.reshape(-1, 3)
+    nb1, nf1 = np.full(len(f), -1), np.full(len(f), -1)
+    assert _pair_faces(f, len(pts), nb1, nf1, 0) == 0
+    np.testing.assert_array_equal(nb1.reshape(-1, 4), nb0)
+    np.testing.assert_array_equal(nf1.reshape(-1, 4), nf0)
+    f3 = face_vertices(np.vstack([tets, tets[:1]])).reshape(-1, 3)
+    assert _pair_faces(f3, len(pts), np.full(len(f3), -1), np.full(len(f3), -1), 0) > 0
+
+
+def test_face_planes_quality_against_numpy(random_mesh):
+    pts, tets, _ = random_mesh
+    tets = tets.copy()
+    p = pts[tets]
+    flip = np.linalg.det(p[:, 1:] - p[:, :1]) < 0
+    tets[flip, :2] = tets[flip, 1::-1]  # positively oriented
+    faces = face_vertices(tets)
+    nb, nf = match_faces(faces, 1, len(pts))
+    planes, qual = face_planes(pts, tets, faces, nb, nf)
+    p = pts[tets]
+    np.testing.assert_allclose(qual["volume"], np.linalg.det(p[:, 1:] - p[:, :1]) / 6.0, rtol=1e-12)
+    i, j = np.triu_indices(4, 1)
+    cos = -np.einsum("tpk,tpk->tp", planes[:, i, :3], planes[:, j, :3])
+    dihedral = np.degrees(np.arccos(np.clip(cos, -1, 1))).min(axis=1)
+    assert qual["summary"]["min_dihedral_deg"]["min"] == pytest.approx(dihedral.min(), rel=1e-12)
+    assert qual["summary"]["min_dihedral_deg"]["median"] == pytest.approx(np.median(dihedral), rel=1e-12)
+    longest = np.linalg.norm(p[:, i] - p[:, j], axis=2).max(axis=1)
+    np.testing.assert_array_equal(qual["longest_edge"], longest)
