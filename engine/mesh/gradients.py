@@ -19,7 +19,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from bentray.engine.mesh.lsq_kernel import LSQ_ACCEPT, LSQ_UNDECIDED, cell_centroids, lsq_systems
+from bentray.engine.mesh.lsq_kernel import (
+    LSQ_ACCEPT,
+    LSQ_UNDECIDED,
+    cell_centroids,
+    green_gauss_systems,
+    lsq_systems,
+)
 
 # Least squares is used only where the normal matrix A = sum_k w_k^2 (x_k - x_0)(x_k - x_0)^T has
 # lambda_min / lambda_max >= LSQ_RCOND_MIN. With inverse-distance weights the rows are unit vectors, so
@@ -147,10 +153,22 @@ def cell_media(
         raise ValueError("quantity_at must return one finite value per point")
     centroids, media_ref = cell_centroids(points, tets, vertex_values)  # the numpy means' bits
     if gradient_method == "green_gauss":
-        return vertex_values, media_ref, centroids, green_gauss_gradients(points, tets, vertex_values), 0
+        all_cells = np.arange(len(tets))
+        return vertex_values, media_ref, centroids, _green_gauss_cells(points, tets, all_cells, vertex_values), 0
     grad, fallback = lsq_gradients_compiled(centroids, media_ref, neighbours, weighted=gradient_method == "lsq")
-    grad[fallback] = green_gauss_gradients(points, tets[fallback], vertex_values)
+    cells = np.flatnonzero(fallback)
+    if len(cells):
+        grad[cells] = _green_gauss_cells(points, tets, cells, vertex_values)
     return vertex_values, media_ref, centroids, grad, int(fallback.sum())
+
+
+def _green_gauss_cells(
+    points: np.ndarray, tets: np.ndarray, cells: np.ndarray, vertex_values: np.ndarray
+) -> np.ndarray:
+    """``green_gauss_gradients(points, tets[cells], vertex_values)`` (n, 3), bit for bit: the same systems
+    from one compiled gather, the same LAPACK solves."""
+    e, dm = green_gauss_systems(points, tets, cells, vertex_values)
+    return np.linalg.solve(e, dm[:, :, None])[:, :, 0]
 
 
 def tet_cell_mesh(

@@ -134,3 +134,31 @@ def lsq_systems(
                  np.ascontiguousarray(neighbours, dtype=np.int64), bool(weighted), float(rcond_min), a, b,
                  status)  # fmt: skip
     return a, b, status
+
+
+@nb.njit(**NJIT_FLAGS)
+def _green_gauss_systems(points, tets, cells, values, e, dm):  # pragma: no cover - compiled
+    for n in range(cells.shape[0]):
+        t = cells[n]
+        v0 = tets[t, 0]
+        for i in range(3):
+            vi = tets[t, i + 1]
+            for k in range(3):
+                e[n, i, k] = points[vi, k] - points[v0, k]
+            dm[n, i] = values[vi] - values[v0]
+
+
+def green_gauss_systems(
+    points: np.ndarray, tets: np.ndarray, cells: np.ndarray, values: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The P1 gradient systems e g = dm of the listed cells, as ``gradients.green_gauss_gradients``
+    builds them: e (n, 3, 3) rows p_i - p_0 (metres), dm (n, 3) m_i - m_0.
+
+    points : (P, 3) float64 metres; tets : (T, 4) int64; cells : (n,) int64 cell ids; values : (P,) float64.
+    """
+    e = np.empty((len(cells), 3, 3))
+    dm = np.empty((len(cells), 3))
+    _green_gauss_systems(np.ascontiguousarray(points, dtype=np.float64), np.ascontiguousarray(tets, dtype=np.int64),
+                         np.ascontiguousarray(cells, dtype=np.int64), np.ascontiguousarray(values, dtype=np.float64),
+                         e, dm)  # fmt: skip
+    return e, dm

@@ -13,7 +13,13 @@ import pytest
 from scipy.spatial import Delaunay
 
 from bentray.engine.errors import MeshBuildError
-from bentray.engine.mesh.gradients import LSQ_RCOND_MIN, cell_media, lsq_gradients, lsq_gradients_compiled
+from bentray.engine.mesh.gradients import (
+    LSQ_RCOND_MIN,
+    cell_media,
+    green_gauss_gradients,
+    lsq_gradients,
+    lsq_gradients_compiled,
+)
 from bentray.engine.mesh.lsq_kernel import (
     EIG_MARGIN,
     LSQ_ACCEPT,
@@ -92,6 +98,16 @@ def test_compiled_gradients_are_lsq_gradients_bit_for_bit(random_mesh, method):
     _, _, _, g2, n_fb = cell_media(pts, tets, nb, lambda p: np.exp(-p[:, 2] / 20.0) + np.sin(p[:, 0] / 7.0), method)
     assert n_fb == fb0.sum()
     np.testing.assert_array_equal(g2[~fb0], g0[~fb0])
+    np.testing.assert_array_equal(g2[fb0], green_gauss_gradients(pts, tets[fb0], vals))
+
+
+def test_green_gauss_cells_are_green_gauss_gradients_bit_for_bit(random_mesh):
+    pts, tets, nb = random_mesh
+    vals = np.exp(-pts[:, 2] / 20.0) + np.sin(pts[:, 0] / 7.0)
+    _, _, _, g, n_fb = cell_media(pts, tets, nb, lambda p: np.exp(-p[:, 2] / 20.0) + np.sin(p[:, 0] / 7.0),
+                                  "green_gauss")  # fmt: skip
+    assert n_fb == 0
+    np.testing.assert_array_equal(g, green_gauss_gradients(pts, tets, vals))
 
 
 def test_compiled_gradients_are_exact_on_a_linear_field(random_mesh):
