@@ -183,23 +183,15 @@ def face_vertices(tets: np.ndarray) -> np.ndarray:
 
 
 # Buckets of faces sharing their lowest vertex are paired by comparing all pairs up to this size (about 20
-# faces in a terrain mesh), by a sort of their keys above it (a vertex with a large fan).
+# faces in a terrain mesh); larger ones (a vertex with a large fan) by a numpy sort of their faces.
 PAIR_SCAN_MAX = 64
 
 
 @nb.njit(**NJIT_FLAGS)
-def _pair(i, j, nb_out, nf_out):  # pragma: no cover - compiled
-    """Record faces i and j (flat ids 4 cell + face) as partners; 1 if either already had one, else 0."""
-    extra = 1 if nb_out[i] >= 0 or nb_out[j] >= 0 else 0
-    nb_out[i], nf_out[i] = j // 4, j % 4
-    nb_out[j], nf_out[j] = i // 4, i % 4
-    return extra
-
-
-@nb.njit(**NJIT_FLAGS)
-def _pair_faces(f, n_points, nb_out, nf_out, scan_max):  # pragma: no cover - compiled
-    """Pair the sorted faces f (F, 3) bucketed by their lowest vertex (counting sort); returns the number
-    of faces that found a second partner (0 unless a face is shared by more than two cells)."""
+def _pair_faces(f, n_points, nb_out, nf_out, scan_max, deferred):  # pragma: no cover - compiled
+    """Pair the sorted faces f (F, 3) bucketed by their lowest vertex (counting sort); faces of buckets
+    larger than scan_max are only marked in ``deferred``. Returns the number of faces that found a second
+    partner (0 unless a face is shared by more than two cells)."""
     start = np.zeros(n_points + 1, dtype=np.int64)
     for i in range(f.shape[0]):
         start[f[i, 0] + 1] += 1
@@ -216,17 +208,30 @@ def _pair_faces(f, n_points, nb_out, nf_out, scan_max):  # pragma: no cover - co
     for v in range(n_points):
         lo, hi = start[v], start[v + 1]
         if hi - lo > scan_max:
-            order = lo + np.argsort(key[lo:hi], kind="mergesort")
-            for p in range(len(order) - 1):
-                if key[order[p]] == key[order[p + 1]]:
-                    extra += _pair(face[order[p]], face[order[p + 1]], nb_out, nf_out)
+            for p in range(lo, hi):
+                deferred[face[p]] = True
             continue
         for p in range(lo, hi):
             for q in range(p + 1, hi):  # the first later copy; a third copy finds q already paired
                 if key[q] == key[p]:
-                    extra += _pair(face[p], face[q], nb_out, nf_out)
+                    i, j = face[p], face[q]
+                    extra += 1 if nb_out[i] >= 0 or nb_out[j] >= 0 else 0
+                    nb_out[i], nf_out[i] = j // 4, j % 4
+                    nb_out[j], nf_out[j] = i // 4, i % 4
                     break
     return extra
+
+
+def _pair_sorted(f: np.ndarray, ids: np.ndarray, nb: np.ndarray, nf: np.ndarray) -> bool:
+    """Pair the faces ``ids`` (flat ids into f (F, 3)) among themselves by a lexicographic sort; False
+    if a face is shared by more than two cells."""
+    s = ids[np.lexsort((f[ids, 2], f[ids, 1], f[ids, 0]))]
+    same = np.all(f[s[1:]] == f[s[:-1]], axis=1)
+    i = np.flatnonzero(same)
+    s1, s2 = s[i], s[i + 1]
+    nb[s1], nf[s1] = s2 // 4, s2 % 4
+    nb[s2], nf[s2] = s1 // 4, s1 % 4
+    return not np.any(same[1:] & same[:-1])
 
 
 def match_faces(faces: np.ndarray, n2: int, n_points: int) -> tuple[np.ndarray, np.ndarray]:
@@ -234,15 +239,17 @@ def match_faces(faces: np.ndarray, n2: int, n_points: int) -> tuple[np.ndarray, 
 
     faces : (T, 4, 3) sorted vertex ids (face_vertices), ids < n_points; n2 (the 2D vertex count) is kept
     for the callers. The faces are bucketed by their lowest vertex and paired within a bucket (compiled;
-    the pairing is unique, so the tables are those of a sort on the whole key). Raises MeshBuildError if a
-    face is shared by more than two cells.
+    buckets over PAIR_SCAN_MAX faces by a numpy sort); the pairing is unique, so the tables are those of a
+    sort on the whole face. Raises MeshBuildError if a face is shared by more than two cells.
     """
     if n_points >= 2**31:
         raise ValueError("match_faces: face keys b n_points + c need n_points < 2**31")
     f = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
     nb = np.full(len(f), -1, dtype=np.int64)
     nf = np.full(len(f), -1, dtype=np.int64)
-    if _pair_faces(f, int(n_points), nb, nf, PAIR_SCAN_MAX):
+    deferred = np.zeros(len(f), dtype=bool)
+    extra = _pair_faces(f, int(n_points), nb, nf, PAIR_SCAN_MAX, deferred)
+    if extra or (deferred.any() and not _pair_sorted(f, np.flatnonzero(deferred), nb, nf)):
         raise MeshBuildError("a face is shared by more than two cells")
     return nb.reshape(-1, 4), nf.reshape(-1, 4)
 

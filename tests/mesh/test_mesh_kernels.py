@@ -13,6 +13,7 @@ import pytest
 from scipy.spatial import Delaunay
 
 from bentray.engine.errors import MeshBuildError
+from bentray.engine.mesh import prisms
 from bentray.engine.mesh.gradients import (
     LSQ_RCOND_MIN,
     cell_media,
@@ -29,7 +30,7 @@ from bentray.engine.mesh.lsq_kernel import (
     cell_centroids,
     lsq_systems,
 )
-from bentray.engine.mesh.prisms import _pair_faces, face_planes, face_vertices, match_faces
+from bentray.engine.mesh.prisms import face_planes, face_vertices, match_faces
 
 G = np.array([0.3, -0.2, 0.5])
 
@@ -170,7 +171,7 @@ def oracle_pairs(faces):
     return nb.reshape(-1, 4), nf.reshape(-1, 4)
 
 
-def test_match_faces_pairs_faces_as_a_sort_does(random_mesh):
+def test_match_faces_pairs_faces_as_a_sort_does(random_mesh, monkeypatch):
     pts, tets, nb_scipy = random_mesh
     faces = face_vertices(tets)
     nb, nf = match_faces(faces, 1, len(pts))
@@ -180,14 +181,13 @@ def test_match_faces_pairs_faces_as_a_sort_does(random_mesh):
     np.testing.assert_array_equal(nb, nb_scipy)  # scipy's neighbour i is opposite vertex i, as here
     with pytest.raises(MeshBuildError, match="more than two cells"):
         match_faces(face_vertices(np.vstack([tets, tets[:1]])), 1, len(pts))
-    # large buckets (a vertex's fan) are paired by a sort of their keys: force it for every bucket
-    f = faces.reshape(-1, 3)
-    nb1, nf1 = np.full(len(f), -1), np.full(len(f), -1)
-    assert _pair_faces(f, len(pts), nb1, nf1, 0) == 0
-    np.testing.assert_array_equal(nb1.reshape(-1, 4), nb0)
-    np.testing.assert_array_equal(nf1.reshape(-1, 4), nf0)
-    f3 = face_vertices(np.vstack([tets, tets[:1]])).reshape(-1, 3)
-    assert _pair_faces(f3, len(pts), np.full(len(f3), -1), np.full(len(f3), -1), 0) > 0
+    # large buckets (a vertex's fan) are paired by a sort: force it for every bucket
+    monkeypatch.setattr(prisms, "PAIR_SCAN_MAX", 0)
+    nb1, nf1 = match_faces(faces, 1, len(pts))
+    np.testing.assert_array_equal(nb1, nb0)
+    np.testing.assert_array_equal(nf1, nf0)
+    with pytest.raises(MeshBuildError, match="more than two cells"):
+        match_faces(face_vertices(np.vstack([tets, tets[:1]])), 1, len(pts))
 
 
 def test_face_planes_quality_against_numpy(random_mesh):
