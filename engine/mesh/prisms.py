@@ -255,8 +255,9 @@ def match_faces(faces: np.ndarray, n2: int, n_points: int) -> tuple[np.ndarray, 
 
 
 @nb.njit(**PARALLEL_FLAGS)
-def _planes_quality(points, tets, faces, planes, area, vol, longest, dihedral):  # pragma: no cover - compiled
+def _planes_quality(points, tets, faces, planes, vol, longest, dihedral, aspect):  # pragma: no cover - compiled
     for t in nb.prange(tets.shape[0]):
+        amax = -math.inf  # largest face area, m^2
         for f in range(4):
             pa = points[faces[t, f, 0]]
             pb = points[faces[t, f, 1]]
@@ -275,7 +276,7 @@ def _planes_quality(points, tets, faces, planes, area, vol, longest, dihedral): 
             planes[t, f, 1] = sign * ny
             planes[t, f, 2] = sign * nz
             planes[t, f, 3] = sign * h
-            area[t, f] = 0.5 * norm
+            amax = max(amax, 0.5 * norm)
         v0, v1, v2, v3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
         e00, e01, e02 = points[v1, 0] - points[v0, 0], points[v1, 1] - points[v0, 1], points[v1, 2] - points[v0, 2]
         e10, e11, e12 = points[v2, 0] - points[v0, 0], points[v2, 1] - points[v0, 1], points[v2, 2] - points[v0, 2]
@@ -294,15 +295,16 @@ def _planes_quality(points, tets, faces, planes, area, vol, longest, dihedral): 
                 cmax = max(cmax, c)
         longest[t] = lmax
         dihedral[t] = min(180.0, math.degrees(math.acos(min(1.0, max(-1.0, cmax)))))
+        aspect[t] = lmax / (3.0 * vol[t] / amax)  # longest edge / shortest altitude
 
 
 @nb.njit(**NJIT_FLAGS)
 def _count_unpaired_planes(planes, neighbours, neighbour_face):  # pragma: no cover - compiled
-    bad = 0
+    bad = 0  # each shared face once, from its lower cell (negation is exact: the test is symmetric)
     for t in range(planes.shape[0]):
         for f in range(4):
             o = neighbours[t, f]
-            if o >= 0:
+            if o > t:
                 g = neighbour_face[t, f]
                 for i in range(4):
                     if planes[o, g, i] != -planes[t, f, i]:
@@ -323,15 +325,14 @@ def face_planes(points: np.ndarray, tets: np.ndarray, faces: np.ndarray, neighbo
     """
     t = len(tets)
     planes = np.empty((t, 4, 4))
-    area = np.empty((t, 4))
     vol = np.empty(t)
     longest = np.empty(t)
     dihedral = np.empty(t)
+    aspect = np.empty(t)
     _planes_quality(np.ascontiguousarray(points, dtype=np.float64), np.ascontiguousarray(tets, dtype=np.int64),
-                    faces, planes, area, vol, longest, dihedral)  # fmt: skip
+                    faces, planes, vol, longest, dihedral, aspect)  # fmt: skip
     if _count_unpaired_planes(planes, neighbours, neighbour_face):
         raise MeshBuildError("a shared face does not hold opposite planes in its two cells (flat tet?)")
-    aspect = longest / (3.0 * vol / area.max(axis=1))
     summary = {
         "volume_min_m3": float(vol.min()),
         "volume_total_m3": float(vol.sum()),

@@ -208,3 +208,15 @@ def test_face_planes_quality_against_numpy(random_mesh):
     assert qual["summary"]["min_dihedral_deg"]["median"] == pytest.approx(np.median(dihedral), rel=1e-12)
     longest = np.linalg.norm(p[:, i] - p[:, j], axis=2).max(axis=1)
     np.testing.assert_array_equal(qual["longest_edge"], longest)
+    fp = pts[faces]  # (T, 4, 3, 3)
+    area = 0.5 * np.linalg.norm(np.cross(fp[:, :, 1] - fp[:, :, 0], fp[:, :, 2] - fp[:, :, 0]), axis=2)
+    aspect = longest / (3.0 * np.abs(np.linalg.det(p[:, 1:] - p[:, :1])) / 6.0 / area.max(axis=1))
+    for key, value in (("median", np.median(aspect)), ("p99", np.percentile(aspect, 99)), ("max", aspect.max())):
+        assert qual["summary"]["aspect"][key] == pytest.approx(value, rel=1e-9)
+    # a shared face whose two planes are not exact opposites is caught, whichever of its cells is changed
+    assert prisms._count_unpaired_planes(planes, nb, nf) == 0
+    cell = np.arange(len(tets))[:, None]
+    for t, f in (np.argwhere(nb > cell)[0], np.argwhere((nb >= 0) & (nb < cell))[0]):
+        bad = planes.copy()
+        bad[t, f, 3] = np.nextafter(bad[t, f, 3], np.inf)
+        assert prisms._count_unpaired_planes(bad, nb, nf) > 0
