@@ -5,11 +5,16 @@ batched numpy: the normal equations A = sum_k w_k^2 (x_k - x_0)(x_k - x_0)^T, b 
 (m_k - m_0), in the same floating-point operations and order as the numpy formula (so A and b are
 bit-identical to it), and the accept / fall back decision lambda_min >= rcond_min lambda_max.
 
-The eigenvalues of the symmetric 3x3 A come in closed form (trigonometric: Smith 1961). Its absolute
-error is at most ~1e-7 lambda_max (acos loses half the digits where two eigenvalues nearly coincide), so a
-cell whose lambda_min - rcond_min lambda_max lies within EIG_MARGIN lambda_max of zero is marked
-undecided (status 2): the caller decides it with LAPACK's eigvalsh exactly as the numpy formula does, and
-every decision is the numpy formula's. The 3x3 solves stay in numpy (LAPACK gesv, bit-identical).
+Most cells are decided from the invariants of the positive semi-definite A (eigenvalues l0 <= l1 <= l2,
+trace tr, sum of principal 2x2 minors i2, determinant det): l0 >= 4 det / tr^2 and l2 <= tr, so
+4 det >= c (1 + INVARIANT_MARGIN) tr^3 accepts (c = rcond_min); l0 <= 3 det / i2 and l2 >= tr / 3, so
+9 det <= c (1 - INVARIANT_MARGIN) tr i2 rejects. Their rounding (~1e-14 tr^3 in det) moves neither test by
+more than ~1e-9 l2 where it could matter, far inside the margin's c 1e-3 l2. The other cells (about 12 % on
+the README mesh) take the closed-form (trigonometric: Smith 1961) extreme eigenvalues, whose absolute error
+is at most ~1e-7 lambda_max (acos loses half the digits where two eigenvalues nearly coincide); a cell
+whose lambda_min - rcond_min lambda_max lies within EIG_MARGIN lambda_max of zero is marked undecided
+(status 2): the caller decides it with LAPACK's eigvalsh exactly as the numpy formula does, and every
+decision is the numpy formula's. The 3x3 solves stay in numpy (LAPACK gesv, bit-identical).
 """
 
 from __future__ import annotations
@@ -24,6 +29,9 @@ from bentray.engine.constants import NJIT_FLAGS
 # Half-width of the undecided band of lambda_min - rcond_min lambda_max, relative to lambda_max: 100x the
 # worst-case error of the closed-form eigenvalues (~1e-7 lambda_max), 1 % of the default rcond_min.
 EIG_MARGIN = 1e-5
+# Relative margin of the invariant tests (module docstring): they decide only cells at least 0.1 % of
+# rcond_min away from the threshold, which no rounding in them can reach.
+INVARIANT_MARGIN = 1e-3
 
 LSQ_ACCEPT = 0  # least squares well posed: solve A g = b
 LSQ_REJECT = 1  # fewer than 3 usable neighbours, or lambda_min < rcond_min lambda_max: fall back
@@ -106,7 +114,17 @@ def _lsq_systems(x0, m0, nbrs, weighted, rcond_min, a, b, status):  # pragma: no
         if count < 3:
             status[c] = LSQ_REJECT
             continue
-        lo, hi = _sym3_extreme_eigenvalues(a[c, 0, 0], a[c, 0, 1], a[c, 0, 2], a[c, 1, 1], a[c, 1, 2], a[c, 2, 2])
+        a00, a01, a02, a11, a12, a22 = a[c, 0, 0], a[c, 0, 1], a[c, 0, 2], a[c, 1, 1], a[c, 1, 2], a[c, 2, 2]
+        tr = a00 + a11 + a22
+        det = a00 * (a11 * a22 - a12 * a12) - a01 * (a01 * a22 - a12 * a02) + a02 * (a01 * a12 - a11 * a02)
+        if tr > 0.0 and 4.0 * det >= rcond_min * (1.0 + INVARIANT_MARGIN) * tr * tr * tr:
+            status[c] = LSQ_ACCEPT
+            continue
+        i2 = (a00 * a11 - a01 * a01) + (a00 * a22 - a02 * a02) + (a11 * a22 - a12 * a12)
+        if tr > 0.0 and 9.0 * det <= rcond_min * (1.0 - INVARIANT_MARGIN) * tr * i2:
+            status[c] = LSQ_REJECT
+            continue
+        lo, hi = _sym3_extreme_eigenvalues(a00, a01, a02, a11, a12, a22)
         gap = lo - rcond_min * hi
         if abs(gap) <= EIG_MARGIN * abs(hi) or not hi > 0.0:
             status[c] = LSQ_UNDECIDED

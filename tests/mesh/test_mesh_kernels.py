@@ -143,6 +143,32 @@ def test_undecided_cells_near_the_threshold_take_lapacks_decision():
     np.testing.assert_array_equal(~fb[0::4], good)
 
 
+def test_decisions_on_flattened_stars_spanning_the_threshold():
+    # 20000 cells, each at the origin of its own star of 4 neighbours whose directions are squashed
+    # toward a plane (z scaled by 10^-3..10^0, sometimes also y): lambda_min / lambda_max spans the
+    # threshold; invariant tests, closed form and LAPACK hand-over must all agree with eigvalsh.
+    rng = np.random.default_rng(5)
+    n = 20000
+    d = rng.standard_normal((n, 4, 3))
+    d[:, :, 2] *= 10.0 ** rng.uniform(-3, 0, (n, 1))
+    d[: n // 4, :, 1] *= 10.0 ** rng.uniform(-2, 0, (n // 4, 1))
+    cen = np.zeros((5 * n, 3))
+    cen.reshape(n, 5, 3)[:, 1:] = d * rng.uniform(0.5, 20.0, (n, 4, 1))
+    nb = np.full((5 * n, 4), -1, dtype=np.int64)
+    nb[0::5] = np.arange(5 * n).reshape(n, 5)[:, 1:]
+    vals = rng.standard_normal(5 * n)
+    for weighted in (True, False):
+        a, _, status = lsq_systems(cen, vals, nb, weighted, LSQ_RCOND_MIN)
+        lam = np.linalg.eigvalsh(a[0::5])
+        good = lam[:, 0] >= LSQ_RCOND_MIN * lam[:, 2]
+        st = status[0::5]
+        assert 0.2 < good.mean() < 0.8 and (st == LSQ_UNDECIDED).mean() < 0.01
+        decided = st != LSQ_UNDECIDED
+        np.testing.assert_array_equal(st[decided] == LSQ_ACCEPT, good[decided])
+        _, fb = lsq_gradients_compiled(cen, vals, nb, weighted)
+        np.testing.assert_array_equal(~fb[0::5], good)
+
+
 def test_closed_form_eigenvalues_are_within_a_hundredth_of_the_margin():
     # random PSD matrices, and near-repeated eigenvalues (acos loses half the digits there)
     rng = np.random.default_rng(3)
