@@ -10,12 +10,22 @@ Two estimators, both exact for a linear field m = a + g . x (up to rounding):
   (Green-Gauss over the 4 faces equals it for a tetrahedron), used as the fallback where the least
   squares system is under-determined or ill-conditioned, and as ``gradient_method="green_gauss"``.
 
-Vectorised numpy (batched 3x3 solves); no Python loop over cells.
+``lsq_gradients`` is vectorised numpy (batched 3x3 solves) and is the reference; ``lsq_gradients_compiled``
+gives the same bits from one compiled pass per cell (lsq_kernel.py: the normal equations and a closed-form
+eigenvalue test, LAPACK only for the few cells near the threshold) and is what ``cell_media`` uses.
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from bentray.engine.mesh.lsq_kernel import (
+    LSQ_ACCEPT,
+    LSQ_UNDECIDED,
+    cell_centroids,
+    green_gauss_systems,
+    lsq_systems,
+)
 
 # Least squares is used only where the normal matrix A = sum_k w_k^2 (x_k - x_0)(x_k - x_0)^T has
 # lambda_min / lambda_max >= LSQ_RCOND_MIN. With inverse-distance weights the rows are unit vectors, so
@@ -97,6 +107,37 @@ def lsq_gradients(
     return grads, used_fallback
 
 
+def lsq_gradients_compiled(
+    centroids: np.ndarray,
+    centroid_values: np.ndarray,
+    neighbours: np.ndarray,
+    weighted: bool = True,
+    *,
+    fallback: np.ndarray | None = None,
+    rcond_min: float = LSQ_RCOND_MIN,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``lsq_gradients`` (same arguments, shapes, units and bits) from the compiled normal equations.
+
+    A and b come from ``lsq_kernel.lsq_systems`` (bit-identical to the einsums); the accept decision is
+    the closed-form one, or LAPACK's eigvalsh as in ``lsq_gradients`` for the cells the kernel leaves
+    undecided (near the threshold), so the decisions are the same; the solves are the same LAPACK gesv.
+    """
+    x0 = np.asarray(centroids, dtype=np.float64)
+    a, b, status = lsq_systems(x0, centroid_values, neighbours, weighted, rcond_min)
+    good = status == LSQ_ACCEPT
+    undecided = np.flatnonzero(status == LSQ_UNDECIDED)
+    if len(undecided):
+        lam = np.linalg.eigvalsh(a[undecided])  # ascending, (u, 3)
+        good[undecided] = (lam[:, 2] > 0) & (lam[:, 0] >= rcond_min * lam[:, 2])
+    grads = np.full((len(x0), 3), np.nan)
+    if np.any(good):
+        grads[good] = np.linalg.solve(a[good], b[good][:, :, None])[:, :, 0]
+    used_fallback = ~good
+    if fallback is not None and np.any(used_fallback):
+        grads[used_fallback] = np.asarray(fallback, dtype=np.float64)[used_fallback]
+    return grads, used_fallback
+
+
 def cell_media(
     points: np.ndarray, tets: np.ndarray, neighbours: np.ndarray, quantity_at, gradient_method: str
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
@@ -110,13 +151,24 @@ def cell_media(
     vertex_values = np.asarray(quantity_at(points), dtype=np.float64).reshape(-1)
     if vertex_values.shape != (len(points),) or not np.all(np.isfinite(vertex_values)):
         raise ValueError("quantity_at must return one finite value per point")
-    centroids = points[tets].mean(axis=1)
-    media_ref = vertex_values[tets].mean(axis=1)
+    centroids, media_ref = cell_centroids(points, tets, vertex_values)  # the numpy means' bits
     if gradient_method == "green_gauss":
-        return vertex_values, media_ref, centroids, green_gauss_gradients(points, tets, vertex_values), 0
-    grad, fallback = lsq_gradients(centroids, media_ref, neighbours, weighted=gradient_method == "lsq")
-    grad[fallback] = green_gauss_gradients(points, tets[fallback], vertex_values)
+        all_cells = np.arange(len(tets))
+        return vertex_values, media_ref, centroids, _green_gauss_cells(points, tets, all_cells, vertex_values), 0
+    grad, fallback = lsq_gradients_compiled(centroids, media_ref, neighbours, weighted=gradient_method == "lsq")
+    cells = np.flatnonzero(fallback)
+    if len(cells):
+        grad[cells] = _green_gauss_cells(points, tets, cells, vertex_values)
     return vertex_values, media_ref, centroids, grad, int(fallback.sum())
+
+
+def _green_gauss_cells(
+    points: np.ndarray, tets: np.ndarray, cells: np.ndarray, vertex_values: np.ndarray
+) -> np.ndarray:
+    """``green_gauss_gradients(points, tets[cells], vertex_values)`` (n, 3), bit for bit: the same systems
+    from one compiled gather, the same LAPACK solves."""
+    e, dm = green_gauss_systems(points, tets, cells, vertex_values)
+    return np.linalg.solve(e, dm[:, :, None])[:, :, 0]
 
 
 def tet_cell_mesh(

@@ -182,38 +182,82 @@ def face_vertices(tets: np.ndarray) -> np.ndarray:
     return faces
 
 
+# Buckets of faces sharing their lowest vertex are paired by comparing all pairs up to this size (about 20
+# faces in a terrain mesh); larger ones (a vertex with a large fan) by a numpy sort of their faces.
+PAIR_SCAN_MAX = 64
+
+
+@nb.njit(**NJIT_FLAGS)
+def _pair_faces(f, n_points, nb_out, nf_out, scan_max, deferred):  # pragma: no cover - compiled
+    """Pair the sorted faces f (F, 3) bucketed by their lowest vertex (counting sort); faces of buckets
+    larger than scan_max are only marked in ``deferred``. Returns the number of faces that found a second
+    partner (0 unless a face is shared by more than two cells)."""
+    start = np.zeros(n_points + 1, dtype=np.int64)
+    for i in range(f.shape[0]):
+        start[f[i, 0] + 1] += 1
+    for v in range(n_points):
+        start[v + 1] += start[v]
+    fill = start[:-1].copy()
+    face = np.empty(f.shape[0], dtype=np.int64)  # bucketed: face id and its key (b, c) as b n_points + c
+    key = np.empty(f.shape[0], dtype=np.int64)
+    for i in range(f.shape[0]):
+        p = fill[f[i, 0]]
+        face[p], key[p] = i, f[i, 1] * n_points + f[i, 2]
+        fill[f[i, 0]] += 1
+    extra = 0
+    for v in range(n_points):
+        lo, hi = start[v], start[v + 1]
+        if hi - lo > scan_max:
+            for p in range(lo, hi):
+                deferred[face[p]] = True
+            continue
+        for p in range(lo, hi):
+            for q in range(p + 1, hi):  # the first later copy; a third copy finds q already paired
+                if key[q] == key[p]:
+                    i, j = face[p], face[q]
+                    extra += 1 if nb_out[i] >= 0 or nb_out[j] >= 0 else 0
+                    nb_out[i], nf_out[i] = j // 4, j % 4
+                    nb_out[j], nf_out[j] = i // 4, i % 4
+                    break
+    return extra
+
+
+def _pair_sorted(f: np.ndarray, ids: np.ndarray, nb: np.ndarray, nf: np.ndarray) -> bool:
+    """Pair the faces ``ids`` (flat ids into f (F, 3)) among themselves by a lexicographic sort; False
+    if a face is shared by more than two cells."""
+    s = ids[np.lexsort((f[ids, 2], f[ids, 1], f[ids, 0]))]
+    same = np.all(f[s[1:]] == f[s[:-1]], axis=1)
+    i = np.flatnonzero(same)
+    s1, s2 = s[i], s[i + 1]
+    nb[s1], nf[s1] = s2 // 4, s2 % 4
+    nb[s2], nf[s2] = s1 // 4, s1 % 4
+    return not np.any(same[1:] & same[:-1])
+
+
 def match_faces(faces: np.ndarray, n2: int, n_points: int) -> tuple[np.ndarray, np.ndarray]:
     """Face hash: (neighbours, neighbour_face), both (T, 4) int64, -1 where a face has no partner.
 
-    Key of a sorted face (a, b, c): a (2 n2)^2 + (b - a) 2 n2 + (c - a), unique because a face spans at most
-    two consecutive levels (b - a, c - a < 2 n2); lexicographic sort when that would overflow int64.
-    Raises MeshBuildError if a face is shared by more than two cells.
+    faces : (T, 4, 3) sorted vertex ids (face_vertices), ids < n_points; n2 (the 2D vertex count) is kept
+    for the callers. The faces are bucketed by their lowest vertex and paired within a bucket (compiled;
+    buckets over PAIR_SCAN_MAX faces by a numpy sort); the pairing is unique, so the tables are those of a
+    sort on the whole face. Raises MeshBuildError if a face is shared by more than two cells.
     """
-    f = faces.reshape(-1, 3)
-    w = 2 * n2
-    if n_points * float(w) ** 2 < 2.0**62:
-        key = f[:, 0] * (w * w) + (f[:, 1] - f[:, 0]) * w + (f[:, 2] - f[:, 0])
-        order = np.argsort(key)
-        ks = key[order]
-        same = ks[1:] == ks[:-1]
-    else:
-        order = np.lexsort((f[:, 2], f[:, 1], f[:, 0]))
-        fs = f[order]
-        same = np.all(fs[1:] == fs[:-1], axis=1)
-    if np.any(same[1:] & same[:-1]):
-        raise MeshBuildError("a face is shared by more than two cells")
-    i = np.flatnonzero(same)
-    s1, s2 = order[i], order[i + 1]
+    if n_points >= 2**31:
+        raise ValueError("match_faces: face keys b n_points + c need n_points < 2**31")
+    f = np.ascontiguousarray(faces, dtype=np.int64).reshape(-1, 3)
     nb = np.full(len(f), -1, dtype=np.int64)
     nf = np.full(len(f), -1, dtype=np.int64)
-    nb[s1], nf[s1] = s2 // 4, s2 % 4
-    nb[s2], nf[s2] = s1 // 4, s1 % 4
+    deferred = np.zeros(len(f), dtype=bool)
+    extra = _pair_faces(f, int(n_points), nb, nf, PAIR_SCAN_MAX, deferred)
+    if extra or (deferred.any() and not _pair_sorted(f, np.flatnonzero(deferred), nb, nf)):
+        raise MeshBuildError("a face is shared by more than two cells")
     return nb.reshape(-1, 4), nf.reshape(-1, 4)
 
 
 @nb.njit(**PARALLEL_FLAGS)
-def _planes_quality(points, tets, faces, planes, area, vol, longest, dihedral):  # pragma: no cover - compiled
+def _planes_quality(points, tets, faces, planes, vol, longest, dihedral, aspect):  # pragma: no cover - compiled
     for t in nb.prange(tets.shape[0]):
+        amax = -math.inf  # largest face area, m^2
         for f in range(4):
             pa = points[faces[t, f, 0]]
             pb = points[faces[t, f, 1]]
@@ -232,16 +276,14 @@ def _planes_quality(points, tets, faces, planes, area, vol, longest, dihedral): 
             planes[t, f, 1] = sign * ny
             planes[t, f, 2] = sign * nz
             planes[t, f, 3] = sign * h
-            area[t, f] = 0.5 * norm
-        p0 = points[tets[t, 0]]
-        e = np.empty((3, 3))
-        for i in range(3):
-            for k in range(3):
-                e[i, k] = points[tets[t, i + 1], k] - p0[k]
-        vol[t] = (e[0, 0] * (e[1, 1] * e[2, 2] - e[1, 2] * e[2, 1]) - e[0, 1] * (e[1, 0] * e[2, 2] - e[1, 2] * e[2, 0])
-                  + e[0, 2] * (e[1, 0] * e[2, 1] - e[1, 1] * e[2, 0])) / 6.0  # fmt: skip
+            amax = max(amax, 0.5 * norm)
+        v0, v1, v2, v3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
+        e00, e01, e02 = points[v1, 0] - points[v0, 0], points[v1, 1] - points[v0, 1], points[v1, 2] - points[v0, 2]
+        e10, e11, e12 = points[v2, 0] - points[v0, 0], points[v2, 1] - points[v0, 1], points[v2, 2] - points[v0, 2]
+        e20, e21, e22 = points[v3, 0] - points[v0, 0], points[v3, 1] - points[v0, 1], points[v3, 2] - points[v0, 2]
+        vol[t] = (e00 * (e11 * e22 - e12 * e21) - e01 * (e10 * e22 - e12 * e20) + e02 * (e10 * e21 - e11 * e20)) / 6.0
         lmax = 0.0
-        dmin = 180.0
+        cmax = -math.inf  # the smallest dihedral angle is acos of the largest cosine (acos decreases)
         for i in range(4):
             for j in range(i + 1, 4):
                 pi = points[tets[t, i]]
@@ -250,18 +292,19 @@ def _planes_quality(points, tets, faces, planes, area, vol, longest, dihedral): 
                 lmax = max(lmax, d)
                 c = -(planes[t, i, 0] * planes[t, j, 0] + planes[t, i, 1] * planes[t, j, 1]
                       + planes[t, i, 2] * planes[t, j, 2])  # fmt: skip
-                dmin = min(dmin, math.degrees(math.acos(min(1.0, max(-1.0, c)))))
+                cmax = max(cmax, c)
         longest[t] = lmax
-        dihedral[t] = dmin
+        dihedral[t] = min(180.0, math.degrees(math.acos(min(1.0, max(-1.0, cmax)))))
+        aspect[t] = lmax / (3.0 * vol[t] / amax)  # longest edge / shortest altitude
 
 
 @nb.njit(**NJIT_FLAGS)
 def _count_unpaired_planes(planes, neighbours, neighbour_face):  # pragma: no cover - compiled
-    bad = 0
+    bad = 0  # each shared face once, from its lower cell (negation is exact: the test is symmetric)
     for t in range(planes.shape[0]):
         for f in range(4):
             o = neighbours[t, f]
-            if o >= 0:
+            if o > t:
                 g = neighbour_face[t, f]
                 for i in range(4):
                     if planes[o, g, i] != -planes[t, f, i]:
@@ -282,15 +325,14 @@ def face_planes(points: np.ndarray, tets: np.ndarray, faces: np.ndarray, neighbo
     """
     t = len(tets)
     planes = np.empty((t, 4, 4))
-    area = np.empty((t, 4))
     vol = np.empty(t)
     longest = np.empty(t)
     dihedral = np.empty(t)
+    aspect = np.empty(t)
     _planes_quality(np.ascontiguousarray(points, dtype=np.float64), np.ascontiguousarray(tets, dtype=np.int64),
-                    faces, planes, area, vol, longest, dihedral)  # fmt: skip
+                    faces, planes, vol, longest, dihedral, aspect)  # fmt: skip
     if _count_unpaired_planes(planes, neighbours, neighbour_face):
         raise MeshBuildError("a shared face does not hold opposite planes in its two cells (flat tet?)")
-    aspect = longest / (3.0 * vol / area.max(axis=1))
     summary = {
         "volume_min_m3": float(vol.min()),
         "volume_total_m3": float(vol.sum()),
