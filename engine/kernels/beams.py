@@ -405,6 +405,66 @@ def grid_values(grid):
     )
 
 
+# Relative and absolute-rounding margins of :func:`outside_hat` (its bounds are exact in real arithmetic; both sides
+# carry rounding of ~1e-16 relative to their terms' magnitudes) and the smallest |X1_perp|^2 / |X1|^2 it trusts
+# (below it the basis takes another branch; the test then rejects nothing).
+HAT_TEST_REL = 1e-9
+HAT_TEST_MIN_PERP = 1e-6
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def outside_hat(t, q, x1, x2, dg1, dg2, w_min, w_fres):
+    """True only when the point's transverse offset lies outside the chord's (floored, Fresnel-widened) hat at the
+    foot, so :func:`point_beam` would give it zero weight: a necessary condition of ownership tested without the
+    transverse basis (no normalisation, no floors rounded up to whole tube widths), which
+    rejects most candidates of a chord's search box at a third of the cost (docs/physics.md §11, "Candidate points").
+
+    t : the interpolated tangent (3-tuple, not normalised); q : point minus foot; x1, x2 : X_1, X_2 at the foot;
+    w_fres : the Fresnel floor at the foot (m, 0 off). With ``Y_perp = Y - (Y.t) t / |t|^2``, ``nu = |X1_perp|`` and
+    the basis of :func:`_transverse_basis` (e1 = X1_perp / nu, a11 = nu, a12 = X2_perp.e1): ownership needs
+    ``|g1| < dg1`` and ``|g2| < dg2``, hence
+    ``|c1| = |a11w g1 + a12 g2| < a11w dg1 + |a12| dg2`` and ``|c2| < a22w dg2``, where the floored and widened
+    ``a_kkw dg_k <= max(a_kk dg_k, w_min) + w_fres`` (the floor is at most w_min; widening by a whole number of tube
+    widths adds less than one tube width to a width below w_fres). Times nu (and |t| nu for c2 = det(t, X1, q) /
+    (|t| nu), a22 = |det(t, X1, X2)| / (|t| nu)) the tests need two square roots and no division by a small number.
+    Every bound is widened by HAT_TEST_REL relative to its terms' magnitudes, so rounding cannot reject an owned
+    point; a nearly point caustic (|X1_perp|^2 < HAT_TEST_MIN_PERP |X1|^2) rejects nothing."""
+    tt = (t[0] * t[0] + t[1] * t[1]) + t[2] * t[2]
+    x1t = x1[0] * t[0] + x1[1] * t[1] + x1[2] * t[2]
+    x11 = x1[0] * x1[0] + x1[1] * x1[1] + x1[2] * x1[2]
+    n1sq = x11 - x1t * x1t / tt
+    if not n1sq > HAT_TEST_MIN_PERP * x11:
+        return False
+    eps = HAT_TEST_REL
+    n1_hi = n1sq + eps * x11
+    nu_hi = math.sqrt(n1_hi)
+    qt = q[0] * t[0] + q[1] * t[1] + q[2] * t[2]
+    qx1 = q[0] * x1[0] + q[1] * x1[1] + q[2] * x1[2]
+    x2t = x2[0] * t[0] + x2[1] * t[1] + x2[2] * t[2]
+    x21 = x2[0] * x1[0] + x2[1] * x1[1] + x2[2] * x1[2]
+    c1 = qx1 - qt * x1t / tt
+    c1_tol = eps * (abs(qx1) + abs(qt * x1t) / tt)
+    a12_hi = abs(x21 - x2t * x1t / tt) + eps * (abs(x21) + abs(x2t * x1t) / tt)
+    rhs1 = max(n1_hi * dg1, w_min * nu_hi) + w_fres * nu_hi + a12_hi * dg2
+    if abs(c1) - c1_tol > (1.0 + eps) * rhs1:
+        return True
+    # c2 and a22 from triple products with t x X1
+    m0 = t[1] * x1[2] - t[2] * x1[1]
+    m1 = t[2] * x1[0] - t[0] * x1[2]
+    m2 = t[0] * x1[1] - t[1] * x1[0]
+    dq = m0 * q[0] + m1 * q[1] + m2 * q[2]
+    dx = m0 * x2[0] + m1 * x2[1] + m2 * x2[2]
+    # rounding of the triple products: bounded by eps times the same sums of absolute products
+    a0 = abs(t[1] * x1[2]) + abs(t[2] * x1[1])
+    a1 = abs(t[2] * x1[0]) + abs(t[0] * x1[2])
+    a2 = abs(t[0] * x1[1]) + abs(t[1] * x1[0])
+    dq_tol = eps * (a0 * abs(q[0]) + a1 * abs(q[1]) + a2 * abs(q[2]))
+    dx_hi = abs(dx) + eps * (a0 * abs(x2[0]) + a1 * abs(x2[1]) + a2 * abs(x2[2]))
+    tn_nu_hi = math.sqrt(tt * n1_hi) * (1.0 + eps)
+    rhs2 = max(dx_hi * dg2, w_min * tn_nu_hi) + w_fres * tn_nu_hi
+    return abs(dq) - dq_tol > (1.0 + eps) * rhs2
+
+
 # point_beam's answer for a point the chord does not own
 _NO_BEAM = (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
@@ -431,15 +491,17 @@ def point_beam(ta, tb, gc, launch_cos, px, py, pz):
     t0 = v_ * ta[S_T] + u * tb[S_T]
     t1 = v_ * ta[S_T + 1] + u * tb[S_T + 1]
     t2 = v_ * ta[S_T + 2] + u * tb[S_T + 2]
-    tn = math.sqrt(((0.0 + t0 * t0) + t1 * t1) + t2 * t2)
     q0 = px - (v_ * ta[S_X] + u * tb[S_X])
     q1 = py - (v_ * ta[S_X + 1] + u * tb[S_X + 1])
     q2 = pz - (v_ * ta[S_X + 2] + u * tb[S_X + 2])
-    tf = (t0 / tn, t1 / tn, t2 / tn)
     x1 = (v_ * ta[S_X1] + u * tb[S_X1], v_ * ta[S_X1 + 1] + u * tb[S_X1 + 1], v_ * ta[S_X1 + 2] + u * tb[S_X1 + 2])
     x2 = (v_ * ta[S_X2] + u * tb[S_X2], v_ * ta[S_X2 + 1] + u * tb[S_X2 + 1], v_ * ta[S_X2 + 2] + u * tb[S_X2 + 2])
     arc = v_ * ta[S_ARC] + u * tb[S_ARC]
     w_fres = math.sqrt(gc[3] * arc) if gc[3] > 0.0 else 0.0
+    if outside_hat((t0, t1, t2), (q0, q1, q2), x1, x2, dg1, dg2, gc[2], w_fres):
+        return _NO_BEAM
+    tn = math.sqrt(((0.0 + t0 * t0) + t1 * t1) + t2 * t2)
+    tf = (t0 / tn, t1 / tn, t2 / tn)
     a11, a12, a22, a11c, a22c, e1, e2 = _transverse_basis(x1, x2, tf, dg1, dg2, gc[2], arc, w_fres, gc[4], gc[5])
     qa = q0 * tf[0] + q1 * tf[1] + q2 * tf[2]
     qp0 = q0 - qa * tf[0]

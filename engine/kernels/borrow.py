@@ -23,7 +23,7 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-__all__ = ["borrow"]
+__all__ = ["borrow", "held_until_here"]
 
 
 def _borrowed(context: Any, builder: Any, ty: types.Type, value: Any) -> Any:
@@ -52,3 +52,18 @@ def _borrow_intrinsic(typingctx: Any, value: types.Type) -> Any:
 
 
 borrow: Any = intrinsic(_borrow_intrinsic)
+
+
+def _held_intrinsic(typingctx: Any, value: types.Type) -> Any:
+    """Typing and code of :func:`held_until_here`: no code; the call is a use of ``value``."""
+
+    def codegen(context: Any, builder: Any, signature: Any, args: Any) -> Any:
+        return context.get_dummy_value()
+
+    return types.none(value), codegen
+
+
+# held_until_here(x): a use of x that generates no code. Numba releases a variable after its last use; a borrowed
+# view of x is valid only while x is held, so a kernel that borrows from an array it allocated calls this where
+# the view's use ends.
+held_until_here: Any = intrinsic(_held_intrinsic)
