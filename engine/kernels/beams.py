@@ -765,6 +765,23 @@ def _image_k_range(ta, tb, px, py, zo, dz, nz, m, reach, z_band):
     return _slab_k_range(ta, tb, r0, step, k0, k1)
 
 
+# Margin (m) of :func:`_images_stay_out`: a ring column is skipped only when its images stay this much short of the box.
+RING_TOL_M = 1e-6
+
+
+@nb.njit(inline="always", **NJIT_FLAGS)
+def _images_stay_out(px, py, box_xy, m0, m1, reach):
+    """True when no image of column (px, py) can lie in the chord's box of columns box_xy = (x_lo, x_hi, y_lo,
+    y_hi) (m): an image r - 2 h n with 0 <= h <= reach moves sideways by at most 2 reach |n_xy| (n_xy = (m0, m1),
+    the mirror plane's horizontal normal), and the column is farther than that from the box. :func:`deposit_chord`
+    searches one column around the box for images (a tilted ground moves them sideways); on flat ground, and on
+    gentle slopes for most columns, none of them can arrive, and the column is skipped before its index range."""
+    dx = max(box_xy[0] - px, px - box_xy[1], 0.0)
+    dy = max(box_xy[2] - py, py - box_xy[3], 0.0)
+    shift = 2.0 * reach * math.sqrt(m0 * m0 + m1 * m1)
+    return shift + RING_TOL_M < math.sqrt(dx * dx + dy * dy)
+
+
 @nb.njit(**NJIT_FLAGS)
 def deposit_chord(grid, acc, slot, chord, scratch, terms):
     """Add the beam of the chord from sample ``sa`` to sample ``sb`` to every grid point it owns, and, where the
@@ -826,8 +843,16 @@ def deposit_chord(grid, acc, slot, chord, scratch, terms):
     mirrored = mirror.shape[0] > 0
     reach = 0.5 * (z_hi - z_lo)  # at least the chord's transverse reach
     ci0, ci1, cj0, cj1 = i0, i1, j0, j1
+    box_xy = (0.0, 0.0, 0.0, 0.0)
     if mirrored:
         ci0, ci1, cj0, cj1 = max(i0 - 1, 0), min(i1 + 1, nx - 1), max(j0 - 1, 0), min(j1 + 1, ny - 1)
+        r_box = z_hi - max(sa[S_X + 2], sb[S_X + 2])  # chord_box's reach
+        box_xy = (
+            min(sa[S_X], sb[S_X]) - r_box,
+            max(sa[S_X], sb[S_X]) + r_box,
+            min(sa[S_X + 1], sb[S_X + 1]) - r_box,
+            max(sa[S_X + 1], sb[S_X + 1]) + r_box,
+        )
     amps_ready = False
     count = 0
     for i in range(ci0, ci1 + 1):
@@ -845,6 +870,8 @@ def deposit_chord(grid, acc, slot, chord, scratch, terms):
             if mirrored:
                 m0 = mirror[i, j, 0]
                 m1 = mirror[i, j, 1]
+                if k0 > k1 and _images_stay_out(px, py, box_xy, m0, m1, reach):
+                    continue  # a column of the ring around the box whose images cannot move into it
                 m2 = mirror[i, j, 2]
                 m3 = mirror[i, j, 3]
                 n0, n1 = _image_k_range(ta, tb, px, py, zo, dz, nz, (m0, m1, m2, m3), reach, (z_lo, z_hi))

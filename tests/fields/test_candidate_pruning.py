@@ -1,5 +1,9 @@
-"""``beams.outside_hat``, the quick rejection of a chord's candidate points, against the exact hat of the
-transverse basis (``beams._transverse_basis``, as ``beams.point_beam`` applies it after the test).
+"""The chord search's pruning may only skip candidates that cannot be owned (else the field would change).
+
+``beams.outside_hat``, the quick rejection of a chord's candidate points, against the exact hat of the
+transverse basis (``beams._transverse_basis``, as ``beams.point_beam`` applies it after the test); and
+``beams._images_stay_out``, which skips the columns around a chord's box whose ground images cannot move into it,
+against the images themselves.
 
 The test may only reject points the exact hat gives zero weight (else the field would change); the oracle below
 is the exact decision written out again from the basis: solve ``X_perp dgamma = q_perp`` in the orthonormal basis
@@ -131,3 +135,48 @@ def test_outside_hat_on_an_axis_aligned_tube() -> None:
         q = _basis_point(t, x1, x2, g1 * dg1, g2 * dg2, 3.0)
         assert bool(beams.outside_hat(t, q, x1, x2, dg1, dg2, 0.0, 0.0)) is outside
         assert _exact_owned(t, q, x1, x2, dg1, dg2, 0.0, 100.0, 0.0, 1.0, 1.0) is (not outside)
+
+
+@nb.njit(cache=False)
+def _ring_cases(seed, n):
+    """(skipped columns whose image at some h in [0, reach] lands in the box, columns skipped, columns tested)."""
+    np.random.seed(seed)
+    wrong = 0
+    skipped = 0
+    for _ in range(n):
+        x_lo = np.random.uniform(-100.0, 100.0)
+        y_lo = np.random.uniform(-100.0, 100.0)
+        box = (x_lo, x_lo + np.random.uniform(0.0, 60.0), y_lo, y_lo + np.random.uniform(0.0, 60.0))
+        px = np.random.uniform(box[0] - 40.0, box[1] + 40.0)
+        py = np.random.uniform(box[2] - 40.0, box[3] + 40.0)
+        slope = np.random.choice(np.array([0.0, 1e-6, 0.05, 0.3, 1.0, 3.0]))
+        az = np.random.uniform(0.0, 2.0 * math.pi)
+        norm = math.sqrt(1.0 + slope * slope)
+        m0 = slope * math.cos(az) / norm
+        m1 = slope * math.sin(az) / norm
+        reach = 10.0 ** np.random.uniform(-1.0, 1.7)
+        if not beams._images_stay_out(px, py, box, m0, m1, reach):
+            continue
+        skipped += 1
+        for h in np.linspace(0.0, reach, 33):
+            qx = px - 2.0 * h * m0
+            qy = py - 2.0 * h * m1
+            if box[0] <= qx <= box[1] and box[2] <= qy <= box[3]:
+                wrong += 1
+                break
+    return wrong, skipped, n
+
+
+def test_ring_columns_skipped_only_when_no_image_reaches_the_box() -> None:
+    """100,000 random columns around random boxes, slopes from flat to 72 degrees: no skipped column has an image
+    (0 <= h <= reach, 33 heights) inside the box; and flat-ground columns outside the box are skipped."""
+    wrong, skipped, n = _ring_cases(7, 100_000)
+    assert wrong == 0
+    assert skipped > n // 4
+    box = (0.0, 10.0, 0.0, 10.0)
+    assert beams._images_stay_out(-0.01, 5.0, box, 0.0, 0.0, 20.0)  # flat ground: images stay in their column
+    assert not beams._images_stay_out(5.0, 5.0, box, 0.0, 0.0, 20.0)  # a column inside the box is never skipped
+    # a 45-degree slope with reach 5 m moves an image by 2 * 5 * sin(45 deg) = 7.07 m sideways
+    s = math.sqrt(0.5)
+    assert not beams._images_stay_out(-7.0, 5.0, box, -s, 0.0, 5.0)
+    assert beams._images_stay_out(-7.1, 5.0, box, -s, 0.0, 5.0)
