@@ -416,8 +416,8 @@ HAT_TEST_MIN_PERP = 1e-6
 def outside_hat(t, q, x1, x2, dg1, dg2, w_min, w_fres):
     """True only when the point's transverse offset lies outside the chord's (floored, Fresnel-widened) hat at the
     foot, so :func:`point_beam` would give it zero weight: a necessary condition of ownership tested without the
-    transverse basis (no normalisation, no floors rounded up to whole tube widths), which
-    rejects most candidates of a chord's search box at a third of the cost (docs/physics.md §11, "Candidate points").
+    transverse basis (no normalisation, no floors rounded up to whole tube widths): most candidates of a chord's
+    search box are rejected here, before the basis is built (docs/physics.md §11, "Candidate points").
 
     t : the interpolated tangent (3-tuple, not normalised); q : point minus foot; x1, x2 : X_1, X_2 at the foot;
     w_fres : the Fresnel floor at the foot (m, 0 off). With ``Y_perp = Y - (Y.t) t / |t|^2``, ``nu = |X1_perp|`` and
