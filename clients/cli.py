@@ -20,7 +20,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -60,6 +60,29 @@ def dask_address(flag: str | None) -> str | None:
     import os
 
     return (flag or "").strip() or os.environ.get(DASK_SCHEDULER_ENV, "").strip() or None
+
+
+class _LazyChoices:
+    """argparse ``choices`` read on first use (checking a value, printing help or an error), so that building
+    the parser for ``bentray run`` does not import the bench or the scene library."""
+
+    def __init__(self, load: Callable[[], Sequence[str]]) -> None:
+        self._load = load
+        self._names: tuple[str, ...] | None = None
+
+    def _get(self) -> tuple[str, ...]:
+        if self._names is None:
+            self._names = tuple(self._load())
+        return self._names
+
+    def __contains__(self, item: object) -> bool:
+        return item in self._get()
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._get())
+
+    def __len__(self) -> int:
+        return len(self._get())
 
 
 class CommandError(Exception):
@@ -224,9 +247,13 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
-def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
+def _bench_sections() -> list[str]:
     from bentray.engine.bench.runner import SECTIONS
 
+    return list(SECTIONS)
+
+
+def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     p = sub.add_parser(
         "bench",
         help="benchmark accuracy and speed; write report.md, CSVs and PNGs",
@@ -237,9 +264,9 @@ def _add_bench(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None
     p.add_argument(
         "--only",
         nargs="+",
-        choices=list(SECTIONS),
+        choices=_LazyChoices(_bench_sections),
         metavar="NAME",
-        help=f"run only these sections: {', '.join(SECTIONS)}",
+        help="run only these sections: %(choices)s",
     )
     p.set_defaults(func=cmd_bench)
 
@@ -276,8 +303,14 @@ def cmd_scenes(args: argparse.Namespace) -> int:
     return 0
 
 
+def _builtin_scene_names() -> list[str]:
+    from bentray.scenes.library.registry import BUILTIN_SCENES
+
+    return list(BUILTIN_SCENES)
+
+
 def _add_scenes(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
-    from bentray.scenes.library.registry import BUILTIN_SCENES, RESOLUTIONS
+    from bentray.scenes.library.common import RESOLUTIONS  # the registry (every scene module) loads on use
 
     p = sub.add_parser(
         "scenes",
@@ -289,7 +322,7 @@ def _add_scenes(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> Non
     p.add_argument("--json", action="store_true", help="print the table as JSON")
     p.add_argument(
         "--job",
-        choices=list(BUILTIN_SCENES),
+        choices=_LazyChoices(_builtin_scene_names),
         metavar="NAME",
         help="print a ready-to-run job file for this scene (10,000 rays, 3 reflections) instead",
     )

@@ -10,16 +10,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from bentray.engine import beam_field
-from bentray.engine.eigenrays import EigenraySearch, RayModel, SearchSettings, find_eigenrays
 from bentray.scenes.directivity_models import DirectivitySpec, launch_direction, ray_amplitudes
 from bentray.scenes.field_models import band_label
 from bentray.scenes.receiver_models import AUTO_EIGENRAY_PAIRS
 from bentray.scenes.schema import Job
+
+if TYPE_CHECKING:  # the search itself loads in run_eigenrays: a job without receivers never imports it
+    from bentray.engine.eigenrays import EigenraySearch, RayModel
 
 ARRIVAL_COLUMNS = [
     "receiver",
@@ -131,6 +133,8 @@ def run_eigenrays(
     frequencies_hz: np.ndarray,
 ) -> ArrivalTable:
     """Search every (source, receiver) pair; models : one RayModel per source (job order)."""
+    from bentray.engine.eigenrays import SearchSettings, find_eigenrays
+
     spec = job.eigenrays
     settings = SearchSettings(
         elevations=spec.elevations, tolerance_m=spec.tolerance_m, max_iterations=spec.max_iterations

@@ -20,7 +20,6 @@ from bentray.engine import field as field_stage
 from bentray.engine.compile_time import compile_timer
 from bentray.engine.constants import BOUNDARY_REFLECT, CURVE_QUANTITY
 from bentray.engine.eigenray_stage import ArrivalTable, eigenray_decision, run_eigenrays
-from bentray.engine.eigenrays import RayModel
 from bentray.engine.errors import JobInputError
 from bentray.engine.executors import Executor
 from bentray.engine.field_buffers import FieldBuffers
@@ -652,6 +651,8 @@ def stage_eigenrays(
     if why_not is not None or setup.receivers_xyz is None:
         log.stages["eigenrays"] = why_not or "skipped: no receivers in the job"
         return None
+    from bentray.engine.eigenrays import RayModel  # only a job with receivers loads the search
+
     template = setup.template
     tables = template.tables if isinstance(template, beam_field.BeamBuffers) else None
     settings = template.settings if isinstance(template, beam_field.BeamBuffers) else None

@@ -16,8 +16,6 @@ with the scene readers (``scenes.mesh_checks``), which re-export these.
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from bentray.engine.mesh.boxes import GEOMETRY_REL_TOL, CandidateLimitError, box_pairs
 
@@ -142,7 +140,11 @@ def closed_mesh_problem(vertices: np.ndarray, faces: np.ndarray) -> str | None:
             f"inconsistently oriented: triangles {pair[0]} and {pair[1]} run through their shared edge in the "
             "same direction (their normals disagree)"
         )
-    # shells: connected components over shared edges; each must enclose a positive volume
+    # shells: connected components over shared edges; each must enclose a positive volume. scipy.sparse.csgraph
+    # loads here: the job schema imports this module, and most jobs have no closed mesh to check
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     pair_rows = np.argsort(idx, kind="stable").reshape(-1, 2)  # each edge appears exactly twice
     fa, fb = owner[pair_rows[:, 0]], owner[pair_rows[:, 1]]
     n_faces = faces.shape[0]

@@ -106,3 +106,30 @@ def test_profile_linear_in_the_traced_quantity_needs_one_slab(tmp_path):
     assert main(["run", str(path), "--out", str(tmp_path / "o")]) == 0
     report = json.loads((tmp_path / "o" / "report.json").read_text())
     assert report["representation"] == "slabs" and report["mesh"]["cells"] == 1
+
+
+def test_a_run_without_receivers_imports_neither_the_eigenray_search_nor_the_bench(tmp_path):
+    """Lazy imports (startup time of ``bentray run``): the eigenray search loads only for a job with
+    receivers, the bench only for ``bentray bench``. Checked in a fresh interpreter after a real run."""
+    job = json.loads(EXAMPLE.read_text())
+    job["outputs"] = ["report"]
+    path = tmp_path / "job.json"
+    path.write_text(json.dumps(job))
+    watched = [
+        "bentray.engine.eigenrays",
+        "bentray.engine.bench.runner",
+        "bentray.engine.stages",
+        "bentray.engine.tracer",
+    ]
+    code = (
+        "import sys\n"
+        "from bentray.clients.cli import main\n"
+        f"rc = main(['run', {str(path)!r}, '--out', {str(tmp_path / 'o')!r}])\n"
+        f"print('LOADED', rc, *[m for m in {watched!r} if m in sys.modules])\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=REPO)
+    assert proc.returncode == 0, proc.stderr
+    loaded = [line for line in proc.stdout.splitlines() if line.startswith("LOADED ")]
+    # only the run's own modules: stages and tracer show that the check sees what the run loaded
+    assert loaded == ["LOADED 0 bentray.engine.stages bentray.engine.tracer"], proc.stdout
+    assert json.loads((tmp_path / "o" / "report.json").read_text())["stages"]["eigenrays"].startswith("skipped")
