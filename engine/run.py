@@ -116,7 +116,12 @@ def run_prepared(prepared: Prepared, *, progress: ProgressFn, executor: Executor
         prepared.media,
     )
     report_progress, runner = progress, executor
-    log = StageLog(dict(prepared.log.timings), dict(prepared.log.stages))
+    log = StageLog(
+        dict(prepared.log.timings),
+        dict(prepared.log.stages),
+        dict(prepared.log.compile_s),  # the mesh stage's kernels compile on a first run too
+        prepared.log.compiled_functions,
+    )
     fan = stages.launch_fan(job)
     start_cells = stages.stage_locate(job, media, surfaces, fan.source, log)
     setup = stages.stage_field_setup(job, profile, media.mesh, surfaces, fan.source, log)
@@ -126,13 +131,17 @@ def run_prepared(prepared: Prepared, *, progress: ProgressFn, executor: Executor
     field_arrays = stages.stage_field(job, profile, surfaces, traced, setup, log)
     receivers = stages.stage_receivers(job, traced, setup, log)
     report_progress("diffraction", 0.92)
-    diffraction = stage_diffraction(job, profile, wind, surfaces, setup, field_arrays, receivers, log)
-    terrain = stage_terrain_screening(job, profile, wind, surfaces, setup, field_arrays, receivers, log)
-    wave = stage_wave_field(job, profile, wind, surfaces, setup, field_arrays, receivers, log)
+    with log.compiling("diffraction"):
+        diffraction = stage_diffraction(job, profile, wind, surfaces, setup, field_arrays, receivers, log)
+    with log.compiling("terrain_screening"):
+        terrain = stage_terrain_screening(job, profile, wind, surfaces, setup, field_arrays, receivers, log)
+    with log.compiling("wave_field"):
+        wave = stage_wave_field(job, profile, wind, surfaces, setup, field_arrays, receivers, log)
     wave_bands = [f"{f:g}" for f in wave["bands_hz"]] if wave is not None else []
-    shadow = stage_refractive_shadow(
-        job, profile, wind, surfaces, setup, field_arrays, receivers, log, field_done_labels=wave_bands
-    )
+    with log.compiling("refractive_shadow"):
+        shadow = stage_refractive_shadow(
+            job, profile, wind, surfaces, setup, field_arrays, receivers, log, field_done_labels=wave_bands
+        )
     report_progress("eigenrays", 0.93)
     arrivals = stages.stage_eigenrays(job, profile, wind, setup, start_cells, fan, log, surfaces)
     if receivers is not None and arrivals is not None:
