@@ -63,7 +63,8 @@ def _held_intrinsic(typingctx: Any, value: types.Type) -> Any:
     return types.none(value), codegen
 
 
-# held_until_here(x): a use of x that generates no code. Numba releases a variable after its last use; a borrowed
-# view of x is valid only while x is held, so a kernel that borrows from an array it allocated calls this where
-# the view's use ends.
+# held_until_here(x): a use of x that generates no code. Numba releases a variable after its last use (on each
+# path: where no later use is reachable); a borrowed view of x is valid only while x is held, so a kernel that
+# borrows from an array it allocated calls this where the view's use ends, and every path that uses the view must
+# reach the call (no continue, break or return between them: the traversal's per-ray body has none at its level).
 held_until_here: Any = intrinsic(_held_intrinsic)
