@@ -19,6 +19,22 @@ def _fresh_function():  # a new dispatcher each call: never in any cache
     return add_one
 
 
+def _tiny_job():
+    """A three-ray job over flat ground (a second or less once the kernels are cached)."""
+    from bentray.scenes.schema import Job
+
+    return Job.model_validate(
+        {
+            "name": "tiny",
+            "scene": {"domain": {"min": [-50, -50, 0], "max": [400, 50, 200]}, "ground": {"kind": "flat"}},
+            "profile": {"kind": "homogeneous"},
+            "sources": [{"position": [0, 0, 1.5]}],
+            "rays": {"elevation_deg": {"min": -10, "max": 10, "count": 3}, "max_time_s": 0.5, "max_reflections": 2},
+            "outputs": ["report"],
+        }
+    )
+
+
 def test_a_compile_is_timed_and_a_second_call_is_not() -> None:
     fn = _fresh_function()
     with compile_timer() as first:
@@ -54,18 +70,8 @@ def test_stage_log_records_compile_seconds_of_the_stage_only() -> None:
 
 def test_report_has_compile_seconds_beside_the_timings() -> None:
     from bentray.engine.run import run_job
-    from bentray.scenes.schema import Job
 
-    job = Job.model_validate(
-        {
-            "name": "tiny",
-            "scene": {"domain": {"min": [-50, -50, 0], "max": [400, 50, 200]}, "ground": {"kind": "flat"}},
-            "profile": {"kind": "homogeneous"},
-            "sources": [{"position": [0, 0, 1.5]}],
-            "rays": {"elevation_deg": {"min": -10, "max": 10, "count": 3}, "max_time_s": 0.5, "max_reflections": 2},
-            "outputs": ["report"],
-        }
-    )
+    job = _tiny_job()
     report = run_job(job).report
     compiled = report["compile_s"]
     assert set(compiled) <= set(report["timings_s"]) | {"total"}
@@ -99,18 +105,8 @@ def test_report_keeps_the_mesh_stage_compile() -> None:
     from bentray.engine.executors import LocalExecutor
     from bentray.engine.run import Prepared, prepare_medium, prepare_scene, run_prepared
     from bentray.engine.stages import StageLog
-    from bentray.scenes.schema import Job
 
-    job = Job.model_validate(
-        {
-            "name": "tiny",
-            "scene": {"domain": {"min": [-50, -50, 0], "max": [400, 50, 200]}, "ground": {"kind": "flat"}},
-            "profile": {"kind": "homogeneous"},
-            "sources": [{"position": [0, 0, 1.5]}],
-            "rays": {"elevation_deg": {"min": -10, "max": 10, "count": 3}, "max_time_s": 0.5, "max_reflections": 2},
-            "outputs": ["report"],
-        }
-    )
+    job = _tiny_job()
     log = StageLog()
     job, frame, surfaces = prepare_scene(job, None, log)
     profile, wind, media = prepare_medium(job, None, surfaces, log, lambda stage, fraction: None)
