@@ -413,25 +413,37 @@ def trace_slots(mesh, prm, fld, paths, rays, slots, beam):
             rf = field.new_ray_field(rays.f_weights[i_ray], refl_cos, refl_mat, i_ray, acc)
             f_on = fld.mode != field.FIELD_OFF
             fst = rf.fst
-            x_h = x_start.copy()
-            x = borrow(x_h)
-            d_h = d_start.copy()
-            d = borrow(d_h)
+            # the ray's work arrays, used through borrowed views: the per-crossing and per-sample calls they go to
+            # count no references (docs/physics.md §9); ``owned`` holds them to the ray's end (held_until_here)
+            owned = (
+                x_start.copy(),  # x
+                d_start.copy(),  # d
+                np.zeros(3),  # e_wind
+                np.empty(3),  # w_grad
+                np.empty(3),  # g_eff
+                np.empty(3),  # g_tmp
+                np.empty(3),  # x_mid
+                np.empty(3),  # xn
+                np.empty(3),  # dn
+                np.empty(3),  # xs
+                np.empty(3),  # ts
+                np.zeros(curves.CS_SIZE),  # cs
+                np.zeros(paraxial.PAR_SIZE),  # par
+                np.zeros(paraxial.PAR_SIZE),  # par_tmp
+                np.zeros(3),  # p_end
+                np.zeros(paraxial.SEG_SIZE),  # seg
+                np.zeros(6),  # rates
+                np.zeros(3),  # g_nb
+                np.empty(3),  # g_slide
+                np.empty(3),  # g: the gradient the current cell's curve is set up with
+            )
+            x, d, e_wind, w_grad, g_eff, g_tmp, x_mid, xn, dn, xs, ts, cs = borrow(owned[:12])
+            par, par_tmp, p_end, seg, rates, g_nb, g_slide, g = borrow(owned[12:])
             norm = math.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
             for i in range(3):
                 d[i] /= norm
             # wind: the ray's horizontal launch azimuth e (the effective-sound-speed approximation keeps it for
             # the whole path); a vertical launch has no azimuth and sees no wind (u . e = 0 for every horizontal u)
-            e_wind_h = np.zeros(3)
-            e_wind = borrow(e_wind_h)
-            w_grad_h = np.empty(3)
-            w_grad = borrow(w_grad_h)
-            g_eff_h = np.empty(3)
-            g_eff = borrow(g_eff_h)
-            g_tmp_h = np.empty(3)
-            g_tmp = borrow(g_tmp_h)
-            x_mid_h = np.empty(3)
-            x_mid = borrow(x_mid_h)
             ray_wind = WIND_NONE
             if wind_code != WIND_NONE:
                 horizontal = math.sqrt(d[0] * d[0] + d[1] * d[1])
@@ -443,16 +455,6 @@ def trace_slots(mesh, prm, fld, paths, rays, slots, beam):
             # the wind's parameters and the ray's azimuth as values for the per-crossing calls (wind.wind_values)
             wp = wind_values(wind_params)
             ew = (e_wind[0], e_wind[1], e_wind[2])
-            xn_h = np.empty(3)
-            xn = borrow(xn_h)
-            dn_h = np.empty(3)
-            dn = borrow(dn_h)
-            xs_h = np.empty(3)
-            xs = borrow(xs_h)
-            ts_h = np.empty(3)
-            ts = borrow(ts_h)
-            cs_h = np.zeros(curves.CS_SIZE)
-            cs = borrow(cs_h)
             t = 0.0
             s = 0.0
             cell = cell_start
@@ -462,16 +464,6 @@ def trace_slots(mesh, prm, fld, paths, rays, slots, beam):
             want_par = rays.out_par.shape[0] > 0
             deposit_on = beam.grid.mode != beams.BEAM_OFF or beam.pts.xyz.shape[0] > 0
             par_on = (deposit_on or want_par) and cell_start >= 0
-            par_h = np.zeros(paraxial.PAR_SIZE)
-            par = borrow(par_h)
-            par_tmp_h = np.zeros(paraxial.PAR_SIZE)
-            par_tmp = borrow(par_tmp_h)
-            p_end_h = np.zeros(3)
-            p_end = borrow(p_end_h)
-            seg_h = np.zeros(paraxial.SEG_SIZE)
-            seg = borrow(seg_h)
-            rates_h = np.zeros(6)
-            rates = borrow(rates_h)
             mid_ok = False
             m_raw = 0.0
             bray_held = beams.new_ray(beam.grid.omega.shape[0])
@@ -518,18 +510,12 @@ def trace_slots(mesh, prm, fld, paths, rays, slots, beam):
             hess = beam.tabs.hessian
             chord_m = beam.tabs.chord_m  # beam samples at least this far apart (m)
             smooth = par_on and parabolic and not wind_on and hess.shape[0] == planes.shape[0]
-            g_nb_h = np.zeros(3)
-            g_nb = borrow(g_nb_h)
             entry = -1
             crossings = 0
             nudges = 0
             nudge_run = 0
             zero_run = 0
             slide_face = -1
-            g_slide_h = np.empty(3)
-            g_slide = borrow(g_slide_h)
-            g_h = np.empty(3)  # the gradient the current cell's curve is set up with
-            g = borrow(g_h)
             prev_cell = -1
             pp_run = 0
             steps = 0
@@ -945,33 +931,9 @@ def trace_slots(mesh, prm, fld, paths, rays, slots, beam):
             out_counts[COUNT_NUDGES] = nudges
             out_counts[COUNT_STEPS] = steps
             out_counts[COUNT_SAMPLES] = count
-            # the per-ray work arrays are used through borrowed views (no reference counts in the calls they are
-            # passed to); their owners are released here, after the last use
+            # the owners of the borrowed work arrays and beam ray are released here, after the views' last use
             held_until_here(bray_held)
-            held_until_here(
-                (
-                    x_h,
-                    d_h,
-                    e_wind_h,
-                    w_grad_h,
-                    g_eff_h,
-                    g_tmp_h,
-                    x_mid_h,
-                    xn_h,
-                    dn_h,
-                    xs_h,
-                    ts_h,
-                    cs_h,
-                    par_h,
-                    par_tmp_h,
-                    p_end_h,
-                    seg_h,
-                    rates_h,
-                    g_nb_h,
-                    g_slide_h,
-                    g_h,
-                )
-            )
+            held_until_here(owned)
 
 
 def trace_rays(mesh, prm, fld, paths, rays, n_slots: int, beam: beams.Beam) -> None:
