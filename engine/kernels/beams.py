@@ -766,7 +766,10 @@ def _image_k_range(ta, tb, px, py, zo, dz, nz, m, reach, z_band):
 
 
 # Margin (m) of :func:`_images_stay_out`: a ring column is skipped only when its images stay this much short of the box.
-RING_TOL_M = 1e-6
+# The box bounds an owned point's distance from the chord's axis by the beams' reach; a curved chord's foot adds an
+# along-tangent offset q.T(u) = u (1 - u) (x_b - x_a).(t_b - t_a) / |T(u)|, millimetres at most for the chords of
+# a few metres that turn by milliradians, which moves a point by far less than this margin beyond the box.
+RING_TOL_M = 1e-3
 
 
 @nb.njit(inline="always", **NJIT_FLAGS)
