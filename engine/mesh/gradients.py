@@ -80,7 +80,6 @@ def lsq_gradients(
     x0 = np.asarray(centroids, dtype=np.float64)
     m0 = np.asarray(centroid_values, dtype=np.float64)
     nb = np.asarray(neighbours, dtype=np.int64)
-    n = len(x0)
     valid = nb >= 0
     j = np.where(valid, nb, 0)
     dx = x0[j] - x0[:, None, :]  # (n, K, 3)
@@ -98,7 +97,15 @@ def lsq_gradients(
     enough = valid.sum(axis=1) >= 3
     lam = np.linalg.eigvalsh(a)  # ascending, (n, 3)
     good = enough & (lam[:, 2] > 0) & (lam[:, 0] >= rcond_min * lam[:, 2])
-    grads = np.full((n, 3), np.nan)
+    return _solve_accepted(a, b, good, fallback)
+
+
+def _solve_accepted(
+    a: np.ndarray, b: np.ndarray, good: np.ndarray, fallback: np.ndarray | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Gradients (n, 3) of the accepted cells from their normal equations a (n, 3, 3), b (n, 3) (LAPACK gesv),
+    ``fallback`` (or NaN) elsewhere; and the rejected mask (n,). Shared by both least-squares paths."""
+    grads = np.full((len(good), 3), np.nan)
     if np.any(good):
         grads[good] = np.linalg.solve(a[good], b[good][:, :, None])[:, :, 0]
     used_fallback = ~good
@@ -129,13 +136,7 @@ def lsq_gradients_compiled(
     if len(undecided):
         lam = np.linalg.eigvalsh(a[undecided])  # ascending, (u, 3)
         good[undecided] = (lam[:, 2] > 0) & (lam[:, 0] >= rcond_min * lam[:, 2])
-    grads = np.full((len(x0), 3), np.nan)
-    if np.any(good):
-        grads[good] = np.linalg.solve(a[good], b[good][:, :, None])[:, :, 0]
-    used_fallback = ~good
-    if fallback is not None and np.any(used_fallback):
-        grads[used_fallback] = np.asarray(fallback, dtype=np.float64)[used_fallback]
-    return grads, used_fallback
+    return _solve_accepted(a, b, good, fallback)
 
 
 def cell_media(
