@@ -219,7 +219,9 @@ def test_rays_reflect_specularly_off_the_box_face(box_mesh):
     altitude = (area2 / np.linalg.norm(e, axis=2).max(axis=1)).min()
     tilt = 2.0 * dev / altitude
     src = np.array([8.0, 17.5, 6.0])
-    d = _fan(np.linspace(-12, 12, 9), np.linspace(-25, 25, 11))
+    # 13 x 15 rays: 19 of them go down to the ground after the wall (11 of a 9 x 11 fan did, and fTetWild's mesh,
+    # which differs from build to build, can bend the face under a few of them: the >= 10 below then failed)
+    d = _fan(np.linspace(-12, 12, 13), np.linspace(-25, 25, 15))
     m = np.array([-1.0, 0.0, 0.0])
     u = _hit(src, d, m, -20.0)
     hit = src + u[:, None] * d
