@@ -40,6 +40,7 @@ import numba as nb
 import numpy as np
 
 from bentray.engine.constants import CURVE_CIRCULAR, CURVE_PARABOLIC, NJIT_FLAGS
+from bentray.engine.kernels.llvm_inline import njit_inline
 
 __all__ = [
     "KARMAN",
@@ -257,7 +258,7 @@ def _speed_up(params, xx, dz):
     return du, d_x, d_p
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _ridge_surface(params, x0):
     """The ridge's surface at world x0: (X = x0 - crest x, h(X) = H L^2 / (X^2 + L^2), h'(X), h''(X)) in metres
     above the ridge's base (H height_m, L half_width_m)."""

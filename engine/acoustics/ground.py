@@ -38,6 +38,7 @@ from numpy.typing import ArrayLike
 from scipy.special import wofz
 
 from bentray.engine.constants import NJIT_FLAGS
+from bentray.engine.kernels.llvm_inline import njit_inline
 
 __all__ = [
     "COS_EPS",
@@ -393,7 +394,7 @@ def build_q2_table(
     return Q2Table(table=q.table[..., 0] ** 2 + q.table[..., 1] ** 2, grid=q.grid)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _table_cell(grid: np.ndarray, n_cos: int, n_r: int, cos_theta: float, r: float):
     """Lower node (i, j) and fractions (tu, tr) in [0, 1] of the table cell holding (cos_theta, r).
 
@@ -422,7 +423,7 @@ def q_lookup(table: np.ndarray, grid: np.ndarray, mat: int, band: int, cos_theta
     return q_at_cell(table, mat, band, i, tu, j, tr)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def q_at_cell(table: np.ndarray, mat: int, band: int, i: int, tu: float, j: int, tr: float):
     """:func:`q_lookup` in a cell already found by :func:`_table_cell` (the cell depends on neither the
     material nor the band: a caller looking up every band at one (cos th, R) finds it once)."""

@@ -39,6 +39,7 @@ import numba as nb
 import numpy as np
 
 from bentray.engine.constants import NJIT_FLAGS
+from bentray.engine.kernels.llvm_inline import njit_inline
 from bentray.engine.profiles import (
     GAMMA_AIR,
     LAPSE_RATE_K_PER_M,
@@ -126,7 +127,7 @@ def exact_media_spec(profile: Profile, smooth_below_ground: bool = True) -> tupl
     return code, np.ascontiguousarray(vals, dtype=np.float64)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _from_c(c_ref, c, gcx, gcy, gcz, out, k):
     """n = c_ref / c and grad n = -c_ref / c^2 grad c into out[k:k+3]."""
     f = -c_ref / (c * c)
@@ -136,7 +137,7 @@ def _from_c(c_ref, c, gcx, gcy, gcz, out, k):
     return c_ref / c
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _from_n2(m, gmz, out, k):
     """n = sqrt(n^2) and grad n = grad(n^2) / (2 n) into out[k:k+3], gradient along z only."""
     n = math.sqrt(m)
@@ -156,7 +157,7 @@ def n_and_grad(code, params, x, out_grad):
     return n_and_grad_at(code, params, x, out_grad, 0)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def n_and_grad_at(code, params, x, out, k):
     """:func:`n_and_grad` writing grad n into ``out[k:k+3]`` (no array view: the integrators' hot path)."""
     cr = params[0]

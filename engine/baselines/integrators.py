@@ -47,6 +47,7 @@ from bentray.engine.baselines.mesh_media import QUANTITY_C as QUANTITY_CODES_C
 from bentray.engine.baselines.mesh_media import QUANTITY_CODES, mesh_n_and_grad_at
 from bentray.engine.baselines.mesh_media import QUANTITY_N as QUANTITY_CODES_N
 from bentray.engine.constants import NJIT_FLAGS
+from bentray.engine.kernels.llvm_inline import njit_inline
 from bentray.engine.mesh.cells import CellMesh
 
 __all__ = [
@@ -227,7 +228,7 @@ def media_n(media, cell, x, out_grad):
     return media_n_at(media, cell, x, out_grad, 0)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def media_n_at(media, cell, x, out, k):
     """:func:`media_n` writing grad n into ``out[k:k+3]``."""
     if media[0] == MEDIA_EXACT:
@@ -236,7 +237,7 @@ def media_n_at(media, cell, x, out, k):
     return n
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def rhs(media, cell, y, out):
     """out (NY,) = dy/dsigma at state y (NY,). False when n <= 0 or anything is non-finite."""
     n = media_n_at(media, cell, y, out, 3)  # grad n lands in out[3:6]
@@ -311,7 +312,7 @@ def dopri5_step(media, cell, y0, k1, h, y1, k7, yerr, work):
     return ok
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def advance(method, media, cell, y0, k1, h, y1, knew, yerr, work):
     """The accepted-step map of ``method``: one step from y0 with step h (sigma units) into y1.
 
@@ -343,7 +344,7 @@ def error_norm(yerr, tol):
     return e / tol
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def controlled_step(method, media, cell, y0, k1, h, step_m, tol, y1, knew, yerr, work):
     """The accepted step from y0 into y1: fixed (h = step_m / n(y0), about step_m metres of arc) for
     Euler and RK4, error-controlled from the trial step h for step doubling and DOPRI5.

@@ -90,6 +90,7 @@ from bentray.engine.constants import (
     STATUS_STEP_LIMIT,
     STATUS_TIME_LIMIT,
 )
+from bentray.engine.kernels.llvm_inline import njit_inline
 from bentray.engine.kernels.paraxial import launch as paraxial_launch
 from bentray.engine.kernels.paraxial import reflect as paraxial_reflect
 from bentray.engine.kernels.traverse import PAR_OUT_SIZE, PathBuffers
@@ -283,7 +284,7 @@ def _finite(y):
     return True
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _land_events(prm, media, bounds, cell, sw, h, eps_x, eps_t, ev, ok):
     """Land the step sw.y0 -> sw.y1 (length h) on its earliest event ``ev = (kind, tag, g0, g1)`` (plane in
     sw.evp), by restarts; an earlier crossing of another boundary that the landing reveals re-targets it
@@ -321,7 +322,7 @@ def _land_events(prm, media, bounds, cell, sw, h, eps_x, eps_t, ev, ok):
     return ok, has, h_end, ev_kind, ev_tag, moved, restarts
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _leave_grazed(prm, media, cell, sw, h_end, g_end, eps_x, grz_tag, ev_kind, ev_tag):
     """The step (length h_end, ending g_end > eps_x beyond the plane sw.grz the ray sits on) left a grazed
     plane: find an interior re-entry by halving and land on it, else take the step and slide along the
@@ -392,7 +393,7 @@ def _resolve_events(prm, media, bounds, cell, sw, h, eps_x, eps_t):
     return ok, has, h_end, ev_kind, ev_tag, slide_tag, moved, restarts
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _launch(media, bounds, sw, cnt, x_start, d_start, cell):
     """Initial state y0 = (x, n d / |d|, 0, 0) and f(y0) into sw.k1 (one evaluation counted in cnt).
 
@@ -421,7 +422,7 @@ def _launch(media, bounds, sw, cnt, x_start, d_start, cell):
     return status, n0, nrm
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _apply_events(prm, sw, cnt, ev_kind, ev_tag, slide_tag, eps_t):
     """The accepted step's events at sw.y0: time limit, exit through an open plane, reflection (counted in
     cnt), a slide along a grazed plane (an open one exits, a reflecting one reflects the outward part of p).
@@ -445,7 +446,7 @@ def _apply_events(prm, sw, cnt, ev_kind, ev_tag, slide_tag, eps_t):
     return status
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _step(media, bounds, prm, paths, sw, cnt, base, cell, h_next, t_last, eps_t, vw):
     """One accepted step from sw.y0 (trial length h_next) with its events, path samples (ray's slice from
     row ``base``) and the mesh walk; counters in cnt. vw : the variational arrays (v0, v1, work), advanced
@@ -531,7 +532,7 @@ def _step(media, bounds, prm, paths, sw, cnt, base, cell, h_next, t_last, eps_t,
     return status, cell, h_next, t_last
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _var_onto_plane(v, pl, f1):
     """The derivatives on the plane pl the step landed on: dsigma_k = -(m.X_k)/(m.x'), X_k += x' dsigma_k,
     P_k += p' dsigma_k with (x', p') = f1[0:6] the step map's rates in its length (var_step)."""
@@ -546,7 +547,7 @@ def _var_onto_plane(v, pl, f1):
             v[6 + o + i] += f1[3 + i] * ds
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _var_fixed_length(v0, v1, f0, h, rate):
     """The fixed step length h = step_m / n(x0) of Euler and RK4 moves with the launch: dh_k = -h (grad n .
     X_k(0)) / n = -h (f0[3:6] . X_k(0)) / n^2 (f0 = f(y0): f0[3:6] = n grad n, f0[7] = n); v1 += rate dh_k."""
@@ -559,7 +560,7 @@ def _var_fixed_length(v0, v1, f0, h, rate):
             v1[6 + o + i] += rate[3 + i] * dh
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _var_renormalize(v, y, f, pn):
     """Derivative of p' = n(x) p/|p| (pn = |p|, f = f(y): f[3:6] = n grad n, f[7] = n):
     P_k' = (grad n . X_k) p/|p| + (n/|p|) (P_k - p^ (p^.P_k))."""
@@ -572,7 +573,7 @@ def _var_renormalize(v, y, f, pn):
             v[6 + o + i] = gx * y[3 + i] / pn + (n / pn) * (v[6 + o + i] - pp * y[3 + i] / pn)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _own_inputs(media, bounds):
     """Per-ray copies of the small shared inputs: every call that passes an array touches its reference
     count (an atomic add), and two threads hitting the same shared counters serialise each other."""

@@ -36,6 +36,7 @@ from bentray.engine.constants import (
     PARALLEL_FLAGS,
 )
 from bentray.engine.kernels import curves
+from bentray.engine.kernels.llvm_inline import njit_inline
 from bentray.engine.mesh.cells import CellMesh
 from bentray.engine.tracer import trace
 
@@ -92,7 +93,7 @@ class WalkParams(NamedTuple):
     cap: int
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _mirror(planes, cell, face, d):
     """d (3,) reflected specularly off face ``face`` of ``cell`` and renormalised, in place."""
     dot = d[0] * planes[cell, face, 0] + d[1] * planes[cell, face, 1] + d[2] * planes[cell, face, 2]

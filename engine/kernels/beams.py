@@ -44,6 +44,7 @@ import numpy as np
 
 from bentray.engine.acoustics.ground import _table_cell, q_at_cell
 from bentray.engine.constants import NJIT_FLAGS
+from bentray.engine.kernels.llvm_inline import njit_inline
 
 # Sample record layout (float64): position, unit tangent, time, arc, X1, X2, P1, P2, slowness 1/c,
 # sign of det[X1, X2, T] at the sample (caustic detection), the ray's reflection count there and whether the
@@ -166,12 +167,12 @@ def group_index(n_refl_groups: int, reflections: int, kmah: int) -> int:
     return min(reflections, n_refl_groups - 1) * N_KMAH + min(kmah, N_KMAH - 1)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def chord_group(n_refl_groups, reflections, kmah):
     return min(reflections, n_refl_groups - 1) * N_KMAH + min(kmah, N_KMAH - 1)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _transverse_basis(x1, x2, t, dg1, dg2, w_min, arc, w_fres, cap1, cap2):
     """Orthonormal transverse basis e1, e2 and the triangular map of dgamma into it.
 
@@ -270,7 +271,7 @@ def _half_width(sample, dg1, dg2, w_min):
     return max(math.sqrt(n1) * dg1, w_min) + max(math.sqrt(n2) * dg2, w_min)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _reach_bound(sa, sb, dg1, dg2, w_min):
     """An upper bound of :func:`chord_reach` without square roots (the 1-norm of X_k bounds its 2-norm; 0.1 %
     and 1 nm of margin cover the rounding of both): the quick test that skips the exact reach of a chord far
@@ -283,7 +284,7 @@ def _reach_bound(sa, sb, dg1, dg2, w_min):
     return 1.001 * r + 1e-9
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def chord_widening(grid, sa, sb):
     """How much (m) the Fresnel floor can widen a beam of the chord from sa to sb along each transverse axis: the
     floor at the chord's larger arc length (the widened hat is at most one tube width more); 0 without it."""
@@ -292,7 +293,7 @@ def chord_widening(grid, sa, sb):
     return 0.0
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def mirror_point(grid, i, j, px, py, pz, reach, out):
     """The image of point (px, py, pz) of column (i, j) through the ground's tangent plane there, into out (3,);
     False when the grid has no mirror planes or the point is farther than ``reach`` above the plane (the image is
@@ -311,14 +312,14 @@ def mirror_point(grid, i, j, px, py, pz, reach, out):
     return True
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _misses(lo, hi, origin, spacing, n):
     """True when no grid coordinate origin + i spacing (0 <= i < n) lies in [lo, hi] (the span tested
     without the integer conversion of :func:`_index_range`)."""
     return hi < origin or lo > origin + (n - 1) * spacing
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def chord_far(grid, sa, sb):
     """True when the chord from sa to sb cannot reach the grid's columns (chord_box's first test) or stays, with
     its beams' reach, above the grid's highest point (BeamGrid.z_top; no point there, and no image: an image
@@ -350,7 +351,7 @@ def _index_range(lo, hi, origin, spacing, n):
     return i0, i1
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _turn(re, im, kmah):
     """(re + i im) * (-i)^kmah: the phase lost at each caustic (exp(-i w t) convention)."""
     k = kmah % 4
@@ -379,7 +380,7 @@ POINT_SCRATCH = 15  # offset of the mirrored point in BeamRay.work (its first 15
 WORK_SIZE = POINT_SCRATCH + 3
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def sample_values(s):
     """The SAMPLE_SIZE floats of a sample record as a tuple (read once per chord: the per-point code then indexes
     a tuple of values, which costs no reference counting, instead of an array bound in a loop)."""
@@ -389,7 +390,7 @@ def sample_values(s):
     # fmt: on
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def grid_values(grid):
     """The scalars of a BeamGrid that a point's beam needs, as a tuple (read once per chord):
     (dgamma_el, dgamma_az, w_min, fresnel_k, fresnel_cap_el, fresnel_cap_az, c_ref, mode)."""
@@ -412,7 +413,7 @@ HAT_TEST_REL = 1e-9
 HAT_TEST_MIN_PERP = 1e-6
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def outside_hat(t, q, x1, x2, dg1, dg2, w_min, w_fres):
     """True only when the point's transverse offset lies outside the chord's (floored, Fresnel-widened) hat at the
     foot, so :func:`point_beam` would give it zero weight: a necessary condition of ownership tested without the
@@ -469,7 +470,7 @@ def outside_hat(t, q, x1, x2, dg1, dg2, w_min, w_fres):
 _NO_BEAM = (False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def point_beam(ta, tb, gc, launch_cos, px, py, pz):
     """The beam of the chord from sample ``ta`` to ``tb`` at point (px, py, pz), nothing accumulated.
 
@@ -541,7 +542,7 @@ def point_beam(ta, tb, gc, launch_cos, px, py, pz):
     return True, w, rel_i, u, tau, amp, near
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def point_beam_terms(grid, chord, px, py, pz, terms):
     """:func:`point_beam` of ``chord`` (see :func:`deposit_chord`) at point (px, py, pz), written into ``terms``
     (PB_*); False if the chord does not own the point or its hat weight is zero. terms : (PB_SIZE,) out array
@@ -551,7 +552,7 @@ def point_beam_terms(grid, chord, px, py, pz, terms):
     )
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def write_terms(terms, beam):
     """:func:`point_beam`'s answer ``beam`` into the work array ``terms`` (PB_*) when the chord owns the point;
     returns whether it does (terms untouched otherwise)."""
@@ -567,7 +568,7 @@ def write_terms(terms, beam):
     return True
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def band_energy(a_re, a_im, b_re, b_im, u, w, rel_i):
     """One band's incoherent term ``w I / I_1m |A|^2`` of a point's beam: A interpolated at the foot (u) between
     the chord's amplitudes (a_re + i a_im at sample a, b_re + i b_im at b); w, rel_i from point_beam_terms.
@@ -578,7 +579,7 @@ def band_energy(a_re, a_im, b_re, b_im, u, w, rel_i):
     return w * rel_i * (re * re + im * im)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def band_coherent(a_re, a_im, b_re, b_im, u, kmah, omega, tau, amp):
     """One band's coherent term ``w sqrt(I / I_1m) A (-i)^kmah exp(i omega tau)`` (re, im) of a point's beam
     (omega: the band's angular frequency; tau, amp from point_beam_terms). Scalars only."""
@@ -590,7 +591,7 @@ def band_coherent(a_re, a_im, b_re, b_im, u, kmah, omega, tau, amp):
     return amp * (re * cph - im * sph), amp * (re * sph + im * cph)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _accumulate(grid, acc, slot, amp_a, amp_b, group, kmah, v, terms):
     """Add a point's beam (``terms``) to point v of accumulator slot ``slot`` (the CPU's per-slot ``+=``;
     the device kernel adds the same terms with atomics, engine/gpu/beam_device.py)."""
@@ -623,7 +624,7 @@ def _accumulate(grid, acc, slot, amp_a, amp_b, group, kmah, v, terms):
             acc.s_im[slot, group, f, v] += im
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _point_beam(grid, acc, slot, chord, px, py, pz, v, scratch, terms):
     """The beam of ``chord`` at point (px, py, pz) accumulated into point v of ``acc``; False if it does not own
     the point or its hat weight is zero. scratch, terms : work arrays of :func:`point_beam_terms`."""
@@ -681,7 +682,7 @@ def chord_box(grid, sa, sb):
 SLAB_TOL_M = 1e-6
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _floor_in(t, lo, hi):
     """floor(t) as a float, t first clamped to [lo - 2, hi + 2] (finite; +-inf allowed): the candidate ranges
     need the bound only within their index range, and the clamp keeps inf out of the integer rounding (math.floor,
@@ -689,13 +690,13 @@ def _floor_in(t, lo, hi):
     return float(math.floor(min(max(t, lo - 2.0), hi + 2.0)))
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _ceil_in(t, lo, hi):
     """ceil(t) as a float, t clamped as in :func:`_floor_in`."""
     return float(math.ceil(min(max(t, lo - 2.0), hi + 2.0)))
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _plane_k_range(a0, ak, b0, bk, k0, k1):
     """The part of the index range [k0, k1] of candidates r_k = r_0 + k step that may lie between a chord's end
     planes, given a0 = (r_0 - x_a).T_a, ak = step.T_a, b0 = (r_0 - x_b).T_b, bk = step.T_b (both distances linear
@@ -726,7 +727,7 @@ def _plane_k_range(a0, ak, b0, bk, k0, k1):
     return int(lo), int(hi)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _slab_k_range(ta, tb, r0, step, k0, k1):
     """:func:`_plane_k_range` of the candidates r0 + k step (3-tuples, m) for the chord from ta to tb (tuples of
     :func:`sample_values`)."""
@@ -737,7 +738,7 @@ def _slab_k_range(ta, tb, r0, step, k0, k1):
     return _plane_k_range(a0, ak, b0, bk, k0, k1)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _image_k_range(ta, tb, px, py, zo, dz, nz, m, reach, z_band):
     """Indices k of the column's points (px, py, zo + k dz) whose ground images can be deposited: those at most
     ``reach`` above the mirror plane m = (n, d) (h = n.r - d in [0, reach]) and whose image can lie in the height
@@ -772,7 +773,7 @@ def _image_k_range(ta, tb, px, py, zo, dz, nz, m, reach, z_band):
 RING_TOL_M = 1e-3
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _images_stay_out(px, py, box_xy, m0, m1, reach):
     """True when no image of column (px, py) can lie in the chord's box of columns box_xy = (x_lo, x_hi, y_lo,
     y_hi) (m): an image r - 2 h n with 0 <= h <= reach moves sideways by at most 2 reach |n_xy| (n_xy = (m0, m1),
@@ -1083,7 +1084,7 @@ def _sample_amplitude(tabs, sample, amp, refl_cos, refl_mat, amp0):
     sample[S_AMP] = 1.0
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def chord_amplitudes(chord):
     """Fill the amplitudes of both samples of a chord (deposit_chord's tuple) where not yet computed: called
     before a chord's first term is accumulated, so a chord that reaches no point costs no amplitude."""
@@ -1108,7 +1109,7 @@ class Beam(NamedTuple):
     pts: BeamPoints
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def sample_record(ray, x, tangent, time, arc, slow, par, n_refl, start_new):
     """First half of :func:`ray_sample`: fill ``ray.cur`` (caustic count; amplitudes later, on demand:
     :func:`chord_amplitudes`); True when the chord ``ray.last`` -> ``ray.cur`` is to be deposited (the caller
@@ -1138,7 +1139,7 @@ def sample_record(ray, x, tangent, time, arc, slow, par, n_refl, start_new):
     return ray.ist[0] != 0 and not start_new
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def sample_shift(ray):
     """Second half of :func:`ray_sample`: the current sample becomes the last one."""
     for i in range(SAMPLE_SIZE):
@@ -1150,14 +1151,14 @@ def sample_shift(ray):
     ray.ist[0] = 1
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def ray_chord(ray, group, kmah, launch_cos, tabs, refl):
     """The chord tuple of :func:`deposit_chord` for a ray's last chord (``ray.last`` -> ``ray.cur``, BeamRay):
     group, kmah, launch_cos as there; tabs the BeamTables; refl the reflections tuple of :func:`ray_sample`."""
     return (ray.last, ray.cur, ray.amp_last, ray.amp_cur, group, kmah, launch_cos, tabs, refl[1], refl[2], ray.amp0)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def deposit_sample(beam, slot, ray, refl, grid_near):
     """Deposit the chord ``ray.last`` -> ``ray.cur`` onto the grid (when ``grid_near``: not :func:`chord_far`) and
     the receiver points. refl : as in :func:`ray_sample`. Returns the number of contributions added. Runs only for
@@ -1181,7 +1182,7 @@ def deposit_sample(beam, slot, ray, refl, grid_near):
     return reached
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def ray_sample(beam, slot, ray, x, tangent, time, arc, slow, par, refl, start_new):
     """Record a sample of the ray and deposit the chord from the previous one (unless start_new).
 

@@ -20,6 +20,7 @@ import numba as nb
 
 from bentray.engine.constants import CURVE_CIRCULAR, CURVE_PARABOLIC, FACE_UNUSED, NJIT_FLAGS
 from bentray.engine.kernels import circular, nlinear, parabolic
+from bentray.engine.kernels.llvm_inline import njit_inline
 from bentray.engine.kernels.roots import NO_ROOT, face_exit_parameter
 
 CS_SIZE = 16
@@ -35,7 +36,7 @@ def slowness(curve: int, m: float, c_ref: float) -> float:
     return m / c_ref
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def setup(curve: int, m0: float, g, d0, cs) -> bool:
     """Fill ``cs`` for the cell; False when the media value is unphysical (n^2, c or n <= 0)."""
     if not (m0 > 0.0) or not math.isfinite(m0):
@@ -66,7 +67,7 @@ def setup(curve: int, m0: float, g, d0, cs) -> bool:
     return True
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def find_exit(curve: int, cs, x0, d0, planes, neighbours, entry: int, on_face_tol: float, size: float):
     """(face index, param) of the first exit among the cell's face planes; (-1, inf) if none.
 
@@ -100,7 +101,7 @@ def find_exit(curve: int, cs, x0, d0, planes, neighbours, entry: int, on_face_to
     return best_face, best
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def time_at(curve: int, cs, param: float, c_ref: float) -> float:
     """Travel time (s) from param 0 to ``param``."""
     if curve == CURVE_PARABOLIC:
@@ -127,7 +128,7 @@ def param_at_time(curve: int, cs, dt: float, param_hi: float, c_ref: float) -> f
     return nlinear.r_at_time(cs[6], cs[7], cs[8], dt, param_hi, c_ref)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def evaluate(curve: int, cs, x0, d0, param: float, x_out, t_out) -> float:
     """Write x(param), T(param) into x_out, t_out; return the arc length (m) from param 0."""
     if curve == CURVE_PARABOLIC:

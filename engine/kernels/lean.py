@@ -75,15 +75,15 @@ from bentray.engine.kernels.traverse import _nudge, _onto_face, _tangent_face
 
 __all__ = ["trace_block_lanes"]
 
-# The parabolic helpers compiled as plain (called, not IR-inlined) functions: the very same Python code as
-# the generic kernel's, so the same arithmetic, but numba's IR inlining (inline="always") of their four
-# call sites and of the prefetch helpers made this kernel compile in about 80 s under load against 22 s
-# (LLVM still inlines the small ones at machine-code level).
-_travel_time = nb.njit(**NJIT_FLAGS)(parabolic.travel_time.py_func)
-_sigma_at_time = nb.njit(**NJIT_FLAGS)(parabolic.sigma_at_time.py_func)
-_state_at = nb.njit(**NJIT_FLAGS)(parabolic.state_at.py_func)
-_arc_length = nb.njit(**NJIT_FLAGS)(parabolic.arc_length.py_func)
-_face_exit_parameter = nb.njit(**NJIT_FLAGS)(face_exit_parameter.py_func)
+# The parabolic helpers: the generic kernel's own (kernels/llvm_inline.py: compiled once, inlined by LLVM), so
+# the same arithmetic. Until 2026-12-05 they were numba-IR inlined there, and this kernel compiled plain
+# copies of them: IR inlining at its four call sites and in the prefetch helpers cost ~80 s of compilation
+# under load against 22 s.
+_travel_time = parabolic.travel_time
+_sigma_at_time = parabolic.sigma_at_time
+_state_at = parabolic.state_at
+_arc_length = parabolic.arc_length
+_face_exit_parameter = face_exit_parameter
 
 
 def _prefetch_intrinsic(typingctx, arr, row, byte_offset):

@@ -15,13 +15,12 @@ from __future__ import annotations
 
 import math
 
-import numba as nb
-
-from bentray.engine.constants import NJIT_FLAGS, TIME_SOLVE_ITERS
+from bentray.engine.constants import TIME_SOLVE_ITERS
+from bentray.engine.kernels.llvm_inline import njit_inline
 from bentray.engine.kernels.roots import log1p_over_x
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def plane_coefficients(mx, my, mz, h, x0, p0, g):
     """Coefficients (A, B, C) of ``m.x(sigma) - h = A sigma^2 + B sigma + C``."""
     a = 0.25 * (mx * g[0] + my * g[1] + mz * g[2])
@@ -30,13 +29,13 @@ def plane_coefficients(mx, my, mz, h, x0, p0, g):
     return a, b, c
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def travel_time(n0sq: float, gp0: float, gg: float, sigma: float, c_ref: float) -> float:
     """Exact travel time (s) after parameter sigma (the cubic of physics.md section 2)."""
     return sigma * (n0sq + sigma * (0.5 * gp0 + sigma * gg / 12.0)) / c_ref
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def sigma_at_time(n0sq: float, gp0: float, gg: float, dt: float, sigma_hi: float, c_ref: float) -> float:
     """Solve t(sigma) = dt on [0, sigma_hi] (t is strictly increasing: dt/dsigma = n^2 / c_ref).
 
@@ -63,7 +62,7 @@ def sigma_at_time(n0sq: float, gp0: float, gg: float, dt: float, sigma_hi: float
     return s
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _plus_part(y: float, p: float, hh: float) -> float:
     """y + sqrt(y^2 + h^2) (= y + p) without cancellation when y < 0."""
     if y >= 0.0:
@@ -71,7 +70,7 @@ def _plus_part(y: float, p: float, hh: float) -> float:
     return hh / (p - y)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def arc_length_closed(p0, g, sigma: float) -> float:
     """Closed-form arc length of the parabolic segment, integral_0^sigma |p0 + (g/2) u| du (metres).
 
@@ -126,7 +125,7 @@ GL4_T0, GL4_T1 = 0.33998104358485626480, 0.86113631159405257522
 GL4_W0, GL4_W1 = 0.65214515486254614263, 0.34785484513745385737
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _speed(p0, g, u: float) -> float:
     """|p(u)| = |p0 + (g/2) u|."""
     px = p0[0] + 0.5 * g[0] * u
@@ -135,7 +134,7 @@ def _speed(p0, g, u: float) -> float:
     return math.sqrt(px * px + py * py + pz * pz)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def arc_length(p0, g, sigma: float) -> float:
     """Arc length of the parabolic segment, integral_0^sigma |p0 + (g/2) u| du (metres).
 
@@ -165,7 +164,7 @@ def arc_length(p0, g, sigma: float) -> float:
     return arc_length_closed(p0, g, sigma)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def state_at(x0, p0, g, sigma: float, x_out, t_out) -> None:
     """Position x(sigma) and unit tangent T(sigma) written into x_out, t_out (3,)."""
     px = p0[0] + 0.5 * g[0] * sigma

@@ -44,6 +44,7 @@ import math
 import numba as nb
 
 from bentray.engine.constants import CURVE_CIRCULAR, CURVE_PARABOLIC, FACE_UNUSED, NJIT_FLAGS
+from bentray.engine.kernels.llvm_inline import njit_inline
 from bentray.engine.kernels.nlinear import arc_length as _nl_arc
 from bentray.engine.kernels.nlinear import height as _nl_height
 from bentray.engine.wind import effective_value, speed_hessian, wind_value
@@ -54,7 +55,7 @@ PAR_SIZE = 12
 SEG_SIZE = 17
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def launch(par, d, n0):
     """Point-source launch: X = 0, P_k = n0 dd/dgamma_k for d = (cos el cos az, cos el sin az, sin el).
 
@@ -79,7 +80,7 @@ def launch(par, d, n0):
     par[11] = 0.0
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def advance(par, sigma):
     """X_k += P_k sigma (in place): the derivatives at parameter sigma of the current cell's curve."""
     for i in range(3):
@@ -87,7 +88,7 @@ def advance(par, sigma):
         par[3 + i] += par[9 + i] * sigma
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def advanced_copy(par, sigma, out):
     """out = the derivatives at parameter sigma (par unchanged)."""
     for i in range(3):
@@ -97,7 +98,7 @@ def advanced_copy(par, sigma, out):
         out[9 + i] = par[9 + i]
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def onto_face(par, plane, p, g, max_dsig):
     """Derivatives on the face plane (m, h) reached with slowness vector p: see the module docstring.
 
@@ -126,7 +127,7 @@ def onto_face(par, plane, p, g, max_dsig):
             par[6 + o + i] += 0.5 * g[i] * dsig
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def hessian_kick(par, hess, cell, coef):
     """P_k += coef H X_k (in place), H the symmetric Hessian of n^2 in row ``cell`` of hess (n_cells, 9):
     (xx, yy, zz, xy, xz, yz), per m^2. Half a step of dP/dsigma = H X / 2 is coef = sigma / 4 (the beams'
@@ -147,7 +148,7 @@ def hessian_kick(par, hess, cell, coef):
         par[8 + o] += coef * (hxz * x0 + hyz * x1 + hzz * x2)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def smooth_gradient(hess, cell, g, x, out):
     """out = g + H (x - c): the smooth medium's gradient at x in ``cell`` (g the cell's gradient, which the
     smooth medium has at the cell's centroid c = hess[cell, 6:9])."""
@@ -183,7 +184,7 @@ def smooth_advance(par, hess, cell, sigma):
         hessian_kick(par, hess, cell, 0.25 * step)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def restart(par, d, p_norm, n_new, g_new):
     """Derivatives of the restart ``p' = n_new(x) d`` with d = p/|p| (p_norm = |p| before, n_new after)."""
     if not (p_norm > 0.0 and n_new > 0.0):
@@ -198,7 +199,7 @@ def restart(par, d, p_norm, n_new, g_new):
             par[6 + o + i] = along * d[i] + scale * (par[6 + o + i] - d[i] * dp)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def reflect(par, m):
     """Specular reflection of the derivatives off the plane with unit normal m (after onto_face)."""
     for k in range(4):
@@ -211,7 +212,7 @@ def reflect(par, m):
 # ----- circular and n-linear curves, and the wind: the segment record (docs/physics.md §10, "Other curves") -----
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def refractive_index(curve, m, c_ref):
     """n = c_ref / c from the traced quantity m of a circular (m = c) or n-linear (m = n) curve."""
     if curve == CURVE_CIRCULAR:
@@ -219,7 +220,7 @@ def refractive_index(curve, m, c_ref):
     return m
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def tangent_derivs(par, d, p_norm, seg):
     """seg[0:6] = D_k = dT/dgamma_k = (P_k - d (d.P_k)) / |p| at a segment start (d the unit tangent)."""
     for k in range(2):
@@ -229,7 +230,7 @@ def tangent_derivs(par, d, p_norm, seg):
             seg[o + i] = (par[6 + o + i] - d[i] * dp) / p_norm
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def plain_terms(par, g, seg):
     """The segment record without wind: d m0 = g.X_k (the cell's linear model), d g = 0."""
     for k in range(2):
@@ -419,7 +420,7 @@ def beam_wind_terms(curve, c_ref, wind, m_raw, g_cell, x, par, seg):
     seg[16] = 1.0
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def finish_terms(par, g, seg):
     """seg[14:16] = d m0 - g.X_k with g the gradient the segment is set up with (after wind_terms)."""
     for k in range(2):
@@ -427,7 +428,7 @@ def finish_terms(par, g, seg):
         seg[14 + k] = seg[6 + k] - (g[0] * par[o] + g[1] * par[o + 1] + g[2] * par[o + 2])
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def drop_gradient_terms(seg):
     """Beams with wind: zero d g/dgamma_k (seg[8:14]), keep d m0 (after finish_terms; docs/physics.md §11).
 
@@ -439,7 +440,7 @@ def drop_gradient_terms(seg):
         seg[8 + i] = 0.0
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def restart_dm(par, d, p_norm, n_new, seg):
     """restart with the segment record's d m0 (d n^2) in place of g.X_k: the parabolic restart with wind."""
     if not (p_norm > 0.0 and n_new > 0.0):
@@ -453,7 +454,7 @@ def restart_dm(par, d, p_norm, n_new, seg):
             par[6 + o + i] = along * d[i] + scale * (par[6 + o + i] - d[i] * dp)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def advance_dg(par, seg, sigma):
     """The parabolic segment's d g/dgamma_k terms (wind): X_k += dg_k sigma^2/4, P_k += dg_k sigma/2."""
     q = 0.25 * sigma * sigma
@@ -597,7 +598,7 @@ def along_curve(curve, cs, x0, d0, g, seg, par, param, rates):
     return _along_nlinear(cs, d0, seg, par, param, rates)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def onto_face_rates(par, plane, rates, max_dparam):
     """onto_face for the D form: the neighbouring ray meets the face d param_k = -(m.X_k)/(m.x') later,
     X_k += x' d param_k, D_k += T' d param_k (rates = x', T'); max_dparam as onto_face's bound."""
@@ -617,7 +618,7 @@ def onto_face_rates(par, plane, rates, max_dparam):
             par[6 + o + i] += rates[3 + i] * dpar
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def to_p(curve, c_ref, cs, g, x0, xe, te, par, seg):
     """D form -> P form in place at the point xe (tangent te) of the segment from x0: P_k = dn_k te + n D_k
     with n = n(m), m = m0 + g.(xe - x0) the segment's own linear model and d m_k = (d m0 - g.X_k(0)) +

@@ -13,14 +13,12 @@ from __future__ import annotations
 
 import math
 
-import numba as nb
-
-from bentray.engine.constants import NJIT_FLAGS
+from bentray.engine.kernels.llvm_inline import njit_inline
 
 NO_ROOT = math.inf
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def upcrossing_root(a: float, b: float, c: float) -> float:
     """Parameter of the unique upward zero crossing of ``a u^2 + b u + c`` (any sign), or +inf.
 
@@ -46,7 +44,7 @@ def upcrossing_root(a: float, b: float, c: float) -> float:
     return q / a
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def face_exit_parameter(a: float, b: float, c: float, is_entry: bool, on_face_tol: float) -> float:
     """Exit parameter through one face, or +inf when the curve does not leave through it.
 
@@ -67,7 +65,7 @@ def face_exit_parameter(a: float, b: float, c: float, is_entry: bool, on_face_to
     return NO_ROOT
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def log1p_over_x(z: float) -> float:
     """log(1 + z) / z, exact limit 1 at z = 0 (z > -1)."""
     if abs(z) < 1e-4:
@@ -75,7 +73,7 @@ def log1p_over_x(z: float) -> float:
     return math.log1p(z) / z
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def expm1_over_x(z: float) -> float:
     """(exp(z) - 1) / z, exact limit 1 at z = 0."""
     if abs(z) < 1e-4:
@@ -83,7 +81,7 @@ def expm1_over_x(z: float) -> float:
     return math.expm1(z) / z
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def atan_over_x(z: float) -> float:
     """atan(z) / z, exact limit 1 at z = 0."""
     if abs(z) < 1e-4:
@@ -92,7 +90,7 @@ def atan_over_x(z: float) -> float:
     return math.atan(z) / z
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def sinh_over_x(z: float) -> float:
     """sinh(z) / z, exact limit 1 at z = 0."""
     if abs(z) < 1e-4:

@@ -78,6 +78,7 @@ from bentray.engine.constants import (
 )
 from bentray.engine.kernels import beams, curves, field, paraxial
 from bentray.engine.kernels.borrow import borrow, held_until_here
+from bentray.engine.kernels.llvm_inline import njit_inline
 from bentray.engine.wind import WIND_NONE, effective_quantity, effective_value, wind_values
 
 
@@ -154,7 +155,7 @@ def _slowness_at(curve, c_ref, media_ref, ref_point, gradient, cell, x, wind_cod
     return curves.slowness(curve, m, c_ref)
 
 
-@nb.njit(inline="always", **NJIT_FLAGS)
+@njit_inline
 def _effective_into(eff, g_eff):
     """wind.effective_value's answer ``eff``: its gradient into g_eff (3,) where effective_quantity would write it
     (state 1; g_eff keeps what it held otherwise); returns the effective traced quantity."""
