@@ -376,15 +376,29 @@ def wind_values(params):
 
 
 @nb.njit(**NJIT_FLAGS)
+def speed_at(code, params, x):
+    """(|u|, d|u|/dx, d|u|/dz) at point x (m; 3-tuple or (3,) array) for a wind code other than WIND_NONE: the
+    one evaluation :func:`along_from_speed` turns into the value along any azimuth (the traversal evaluates it once per
+    point for the ray's azimuth and its turn)."""
+    return _speed(code, params, x)
+
+
+@njit_inline
+def along_from_speed(params, speed, e):
+    """(w, dw/dx, dw/dy, dw/dz) of :func:`wind_value` from the speed at the point, speed = :func:`speed_at`'s
+    (|u|, d|u|/dx, d|u|/dz), for the horizontal unit azimuth e: the same arithmetic, bit for bit."""
+    cos_a = params[2] * e[0] + params[3] * e[1]  # cos of the angle between the wind and e
+    return cos_a * speed[0], cos_a * speed[1], 0.0, cos_a * speed[2]
+
+
+@nb.njit(**NJIT_FLAGS)
 def wind_value(code, params, x, e):
     """(w, dw/dx, dw/dy, dw/dz): w = u(x) . e (m/s) at point x (m) for the horizontal unit azimuth e, and its
     exact gradient (1/s). x, e : 3-tuples or (3,) arrays; params : the wind's parameters (array, or the tuple of
     :func:`wind_values`). code WIND_NONE gives zeros."""
     if code == WIND_NONE:
         return 0.0, 0.0, 0.0, 0.0
-    cos_a = params[2] * e[0] + params[3] * e[1]  # cos of the angle between the wind and e
-    u, du_dx, du_dz = _speed(code, params, x)
-    return cos_a * u, cos_a * du_dx, 0.0, cos_a * du_dz
+    return along_from_speed(params, _speed(code, params, x), e)
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -410,6 +424,21 @@ def effective_value(curve, c_ref, m, g, code, params, x, e):
     and its gradient computed but no g_eff. The same arithmetic as effective_quantity, bit for bit."""
     if not (m > 0.0):
         return m, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    return _effective(curve, c_ref, m, g, wind_value(code, params, x, e))
+
+
+@nb.njit(**NJIT_FLAGS)
+def effective_value_at(curve, c_ref, m, g, params, speed, e):
+    """:func:`effective_value` with the wind's speed at the point already evaluated (speed = :func:`speed_at`'s,
+    code not WIND_NONE): the same tuple, bit for bit."""
+    if not (m > 0.0):
+        return m, 0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0
+    return _effective(curve, c_ref, m, g, along_from_speed(params, speed, e))
+
+
+@njit_inline
+def _effective(curve, c_ref, m, g, wv):
+    """effective_value's arithmetic for m > 0 and the wind's (w, grad w) = wv at the point."""
     if curve == CURVE_PARABOLIC:
         c = c_ref / math.sqrt(m)
         dc = -0.5 * c / m  # dc/dm
@@ -419,7 +448,7 @@ def effective_value(curve, c_ref, m, g, code, params, x, e):
     else:
         c = c_ref / m
         dc = -c / m
-    w, wg0, wg1, wg2 = wind_value(code, params, x, e)
+    w, wg0, wg1, wg2 = wv
     if w == 0.0 and wg0 == 0.0 and wg1 == 0.0 and wg2 == 0.0:
         # no wind here (crosswind ray, below z_g): the medium itself, bit for bit (no round trip through c)
         return m, 1, g[0], g[1], g[2], w, wg0, wg1, wg2

@@ -394,14 +394,22 @@ def beam_wind_terms(curve, c_ref, wind, m_raw, g_cell, x, par, seg):
     linear in e). wind_terms gets the same by central differences (relative step WIND_FD_REL): one effective
     medium and one wind evaluation here instead of four. wind : (code, params, e), params an array or the tuple
     of wind.wind_values; m_raw, g_cell : the cell's traced quantity at x and its gradient. Values, not work
-    arrays: the traversal calls this at every crossing. The traversal calls it only where the segment was set
-    up, so the effective medium at x exists (state 1).
+    arrays. The device kernel calls this; the CPU traversal, which has the effective medium at x already, calls
+    :func:`beam_wind_record` with it (the same arithmetic). Called only where the segment was set up, so the
+    effective medium at x exists (state 1).
     """
     code, params, e = wind
     xv = (x[0], x[1], x[2])
-    m_eff, _, g0, g1, g2, _, _, _, _ = effective_value(
-        curve, c_ref, m_raw, (g_cell[0], g_cell[1], g_cell[2]), code, params, xv, (e[0], e[1], e[2])
-    )
+    eff = effective_value(curve, c_ref, m_raw, (g_cell[0], g_cell[1], g_cell[2]), code, params, xv, (e[0], e[1], e[2]))
+    u_de = wind_value(code, params, xv, (-e[1], e[0], 0.0))[0]
+    beam_wind_record(curve, c_ref, eff, u_de, par, seg)
+
+
+@nb.njit(**NJIT_FLAGS)
+def beam_wind_record(curve, c_ref, eff, u_de, par, seg):
+    """:func:`beam_wind_terms` from the effective medium at x, eff = wind.effective_value's tuple there (state 1),
+    and u_de = u(x).de, the wind along the launch azimuth's turn de = (-e_y, e_x, 0) (m/s)."""
+    m_eff, _, g0, g1, g2, _, _, _, _ = eff
     if curve == CURVE_CIRCULAR:
         dm = 1.0
     elif curve == CURVE_PARABOLIC:
@@ -410,7 +418,6 @@ def beam_wind_terms(curve, c_ref, wind, m_raw, g_cell, x, par, seg):
     else:
         c_eff = c_ref / m_eff if m_eff > 0.0 else 0.0
         dm = -m_eff / c_eff if c_eff > 0.0 else 0.0
-    u_de = wind_value(code, params, xv, (-e[1], e[0], 0.0))[0]
     for k in range(2):
         o = 3 * k
         seg[6 + k] = g0 * par[o] + g1 * par[o + 1] + g2 * par[o + 2]

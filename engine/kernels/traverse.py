@@ -79,7 +79,15 @@ from bentray.engine.constants import (
 from bentray.engine.kernels import beams, curves, field, paraxial
 from bentray.engine.kernels.borrow import borrow, held_until_here
 from bentray.engine.kernels.llvm_inline import njit_inline
-from bentray.engine.wind import WIND_NONE, effective_quantity, effective_value, wind_values
+from bentray.engine.wind import (
+    WIND_NONE,
+    along_from_speed,
+    effective_quantity,
+    effective_value,
+    effective_value_at,
+    speed_at,
+    wind_values,
+)
 
 
 class RayParams(NamedTuple):
@@ -547,7 +555,11 @@ def trace_slots(mesh, prm, fld, paths, rays, slots, beam):
                     m_raw = m0
                     g_cell = (g[0], g[1], g[2])
                     x_now = (x[0], x[1], x[2])
-                    m0 = _effective_into(effective_value(curve, c_ref, m0, g_cell, wind_code, wp, x_now, ew), g_eff)
+                    # the wind's speed at x, evaluated once: the effective medium here and the beams' segment
+                    # record (paraxial.beam_wind_record) both take it (wind.effective_value's arithmetic)
+                    su_x = speed_at(wind_code, wp, x_now)
+                    eff_x = effective_value_at(curve, c_ref, m0, g_cell, wp, su_x, ew)
+                    m0 = _effective_into(eff_x, g_eff)
                     mid_ok = _chord_middle(planes[cell], neighbours[cell], x, d, x_mid)
                     if mid_ok:
                         m_mid = _media_at(media_ref, ref_point, gradient, cell, x_mid)
@@ -582,7 +594,8 @@ def trace_slots(mesh, prm, fld, paths, rays, slots, beam):
                 if par_on and wind_on:  # the effective medium's derivatives (docs/physics.md §10, wind)
                     paraxial.tangent_derivs(par, d, p_norm, seg)
                     if deposit_on:  # beams drop the gradient terms: d m0 alone, in closed form
-                        paraxial.beam_wind_terms(curve, c_ref, (ray_wind, wp, ew), m_raw, gradient[cell], x, par, seg)
+                        u_de = along_from_speed(wp, su_x, (-ew[1], ew[0], 0.0))[0]  # the wind along the azimuth's turn
+                        paraxial.beam_wind_record(curve, c_ref, eff_x, u_de, par, seg)
                     else:
                         paraxial.wind_terms(
                             curve,
