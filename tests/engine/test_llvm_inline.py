@@ -83,3 +83,31 @@ def test_prefixes_do_not_overlap_between_kernels() -> None:
     b = mangled_prefix(parabolic.arc_length_closed.py_func)
     assert not b.startswith(a) and not a.startswith(b)
     assert a.endswith("10arc_length")
+
+
+def test_the_traversal_keeps_no_call_to_an_inlined_kernel() -> None:
+    """The README job's kernel (a 5 x 5 fan of it: beams, wind, terrain) as callers link it: every njit_inline
+    function it uses is inlined, none is left as a call or a definition (the module's IR as the cache keeps it)."""
+    import json
+    from pathlib import Path
+
+    from bentray.engine.kernels import traverse
+    from bentray.engine.run import run_job
+    from bentray.scenes.schema import Job
+
+    job_file = Path(__file__).resolve().parents[2] / "scenes" / "examples" / "ridge-wind-map.json"
+    spec = json.loads(job_file.read_text())
+    spec["rays"]["elevation_deg"]["count"] = 5
+    spec["rays"]["azimuth_deg"]["count"] = 5
+    spec["outputs"] = ["field", "report"]
+    run_job(Job.model_validate(spec), job_file.parent)
+    prefixes = tuple(llvm_inline._PREFIXES)
+    assert len(prefixes) > 50  # the engine's small kernels are registered
+    assert traverse.trace_slots.overloads
+    for overload in traverse.trace_slots.overloads.values():
+        module = overload.library._get_module_for_linking()
+        text = str(module)
+        called = {m.group(1) for m in re.finditer(r"call [^\n]*?@\"?(_ZN[\w.$]+)", text)}
+        assert called  # the kernel does call plain njit functions (the test sees calls)
+        assert not [name for name in called if name.startswith(prefixes)]
+        assert not [f.name for f in module.functions if not f.is_declaration and f.name.startswith(prefixes)]
