@@ -108,7 +108,8 @@ METHOD_CODES = {
 # stages; A[m] (7, 7) stage coefficients, B[m] (7,) weights, E[m] (7,) error weights (b - b_hat; zero
 # for the fixed-step methods).
 #
-# Inlining (Numba IR, inline="always"): every call that passes arrays pays atomic reference-count
+# Inlining (kernels/llvm_inline.py's njit_inline since 2026-12-05, Numba IR inlining before; the figures below
+# are from then): every call that passes arrays pays atomic reference-count
 # updates per array, which dominated the step cost. The media evaluation and rhs are inlined (an A-LD
 # right-hand side went from 260 to 105 ns), and so are advance and controlled_step, which have one hot
 # call site (an Euler step of the tracer: 480 -> 350 ns CPU; +2 s of compilation). rk_step is not:

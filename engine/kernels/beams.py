@@ -1209,6 +1209,7 @@ def ray_sample(beam, slot, ray, x, tangent, time, arc, slow, par, refl, start_ne
 @nb.njit(**NJIT_FLAGS)
 def ray_sample_call(beam, slot, ray, x, tangent, time, arc, slow, par, refl, start_new):
     """:func:`ray_sample` as a called function, for the samples taken once per ray (the launch, the end of the
-    last segment, the end). Each inlined copy of ray_sample is typed and compiled again (~1 s each); the
-    per-crossing, per-reflection and in-segment samples stay inlined."""
+    last segment, the end). Each inlined copy of ray_sample is optimised and emitted again by LLVM (under
+    Numba's IR inlining, until 2026-12-05, also typed again: ~1 s each); the per-crossing, per-reflection and
+    in-segment samples stay inlined."""
     return ray_sample(beam, slot, ray, x, tangent, time, arc, slow, par, refl, start_new)

@@ -150,7 +150,8 @@ def evaluate(curve: int, cs, x0, d0, param: float, x_out, t_out) -> float:
 def evaluate_call(curve: int, cs, x0, d0, param: float, x_out, t_out) -> float:
     """:func:`evaluate` as a called function, for call sites off the per-crossing path (path samples, the last
     segment of a ray). evaluate is inlined wherever it is called, and each inlined copy (with its arc length and
-    the three curve kinds) is typed and compiled again (5 copies cost ~8 s of the first run's compilation)."""
+    the three curve kinds) is optimised and emitted again (under Numba's IR inlining, until 2026-12-05, also
+    typed again: 5 copies cost ~8 s of the first run's compilation)."""
     return evaluate(curve, cs, x0, d0, param, x_out, t_out)
 
 

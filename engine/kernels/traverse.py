@@ -368,7 +368,8 @@ def trace_slots(mesh, prm, fld, paths, rays, slots, beam):
       hot paths was reference counted with atomics (a prange gufunc's arguments are not), and the beam trace
       ran 15 % slower than under the prange caller; borrowed, it runs 9-12 % faster than that;
     - the samples taken once per ray call beams.ray_sample_call and the last segment curves.evaluate_call
-      instead of inlined copies (each inlined copy is typed and compiled again).
+      instead of inlined copies (each inlined copy is optimised and emitted again by LLVM; until 2026-12-05,
+      when Numba inlined them, also typed again).
 
     mesh : CellMesh; prm : RayParams; fld : field.FieldAcc (mode FIELD_OFF: no accumulation), written in
     accumulator slot ``acc``; paths : PathBuffers (ray i's slice); rays : Rays (row i read and written:

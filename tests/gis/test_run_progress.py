@@ -31,6 +31,22 @@ def test_terminal_gets_stages_and_a_ray_bar():
     assert "500/1000" in text and "1000/1000" in text and "rays" in text
 
 
+def test_terminal_says_when_numba_compiles():
+    import numba
+
+    from bentray.clients.progress import COMPILING_NOTE
+
+    out = _Tty()
+    p = RunProgress(10, stream=out)
+    p("trace", 0.1)
+    numba.njit(cache=False)(lambda x: x + 1)(1)  # a fresh compilation while the line is up
+    p.close()
+    assert COMPILING_NOTE in out.getvalue()
+    after = out.getvalue()
+    numba.njit(cache=False)(lambda x: x + 2)(1)  # closed: the listener is gone, nothing is drawn
+    assert out.getvalue() == after
+
+
 def test_pipe_gets_no_progress(tmp_path, capsys):
     quiet = io.StringIO()  # not a terminal
     p = RunProgress(1000, stream=quiet)
