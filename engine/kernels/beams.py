@@ -262,26 +262,55 @@ def signed_tube(sample):
 
 @nb.njit(**NJIT_FLAGS)
 def _half_width(sample, dg1, dg2, w_min):
-    """Upper bound of the beam's transverse reach around a sample (m)."""
+    """Upper bound (m) of |q_perp|, a point's transverse offset from its foot, for the beams of a sample's tube
+    before Fresnel widening: ``max(|X1| dg1, w_min) + sqrt(|X2|^2 dg2^2 + w_min^2)``.
+
+    In point_beam's basis q_perp = g1 a11 e1 + g2 (a12 e1 + a22 e2) with |g_k| < dg_k, so |q_perp| <= a11 dg1 +
+    sqrt(a12^2 + a22^2) dg2. a11 dg1 is |X1_perp| dg1 or its floor (<= w_min). a12^2 + a22^2 = |X2_perp|^2, but the
+    floor raises a22 alone: a sheared tube (X2 nearly along X1, a22 small) floored to w_min reaches
+    sqrt(a12^2 dg2^2 + w_min^2), up to sqrt(2) times max(|X2| dg2, w_min), the bound used until 2026-12-05, which
+    the search box then missed owned points by (tests/fields/test_candidate_pruning.py). docs/physics.md §11."""
     n1 = 0.0
     n2 = 0.0
     for i in range(3):
         n1 += sample[S_X1 + i] * sample[S_X1 + i]
         n2 += sample[S_X2 + i] * sample[S_X2 + i]
-    return max(math.sqrt(n1) * dg1, w_min) + max(math.sqrt(n2) * dg2, w_min)
+    return max(math.sqrt(n1) * dg1, w_min) + math.sqrt(n2 * dg2 * dg2 + w_min * w_min)
+
+
+@nb.njit(**NJIT_FLAGS)
+def _foot_offset_bound(sa, sb):
+    """Upper bound (m) of a point's offset along the tangent from its foot on the straight chord from sa to sb.
+
+    The foot is (1 - u) x_a + u x_b with u where the point's distances to the two end planes (normals t_a, t_b)
+    interpolate to 0, so q.T(u) = u (1 - u) (x_b - x_a).(t_b - t_a) with T(u) = (1 - u) t_a + u t_b; for unit
+    tangents |T(u)| >= |t_a + t_b| / 2, hence |q.T / |T|| <= |x_b - x_a| |t_b - t_a| / (2 |t_a + t_b|): micrometres
+    to millimetres for the chords of a few metres that turn by milliradians. |t_a + t_b| is taken at least 1: a
+    chord turning by more than 120 degrees (which the sampling never makes) gets |x_b - x_a| |t_b - t_a| / 2."""
+    d2 = 0.0
+    dt2 = 0.0
+    st2 = 0.0
+    for i in range(3):
+        d = sb[S_X + i] - sa[S_X + i]
+        dt = sb[S_T + i] - sa[S_T + i]
+        st = sb[S_T + i] + sa[S_T + i]
+        d2 += d * d
+        dt2 += dt * dt
+        st2 += st * st
+    return math.sqrt(d2 * dt2) / (2.0 * max(math.sqrt(st2), 1.0))
 
 
 @njit_inline
 def _reach_bound(sa, sb, dg1, dg2, w_min):
-    """An upper bound of :func:`chord_reach` without square roots (the 1-norm of X_k bounds its 2-norm; 0.1 %
-    and 1 nm of margin cover the rounding of both): the quick test that skips the exact reach of a chord far
-    from every point."""
+    """An upper bound of :func:`chord_reach` before the Fresnel widening (the 1-norm of X_k bounds its 2-norm,
+    a + w_min bounds sqrt(a^2 + w_min^2); 0.1 % and 1 nm of margin cover the rounding): the quick test that skips
+    the exact reach of a chord far from every point."""
     a1 = abs(sa[S_X1]) + abs(sa[S_X1 + 1]) + abs(sa[S_X1 + 2])
     a2 = abs(sa[S_X2]) + abs(sa[S_X2 + 1]) + abs(sa[S_X2 + 2])
     b1 = abs(sb[S_X1]) + abs(sb[S_X1 + 1]) + abs(sb[S_X1 + 2])
     b2 = abs(sb[S_X2]) + abs(sb[S_X2 + 1]) + abs(sb[S_X2 + 2])
-    r = max(max(a1 * dg1, w_min) + max(a2 * dg2, w_min), max(b1 * dg1, w_min) + max(b2 * dg2, w_min))
-    return 1.001 * r + 1e-9
+    r = max(max(a1 * dg1, w_min) + a2 * dg2 + w_min, max(b1 * dg1, w_min) + b2 * dg2 + w_min)
+    return 1.001 * (r + _foot_offset_bound(sa, sb)) + 1e-9
 
 
 @njit_inline
@@ -637,10 +666,14 @@ def _point_beam(grid, acc, slot, chord, px, py, pz, v, scratch, terms):
 
 @nb.njit(**NJIT_FLAGS)
 def chord_reach(grid, sa, sb):
-    """Transverse reach (m) of the beams of the chord from sample sa to sb (the search box's margin)."""
+    """Upper bound (m) of |P - foot| for every point P the chord from sample sa to sb owns (the search box's
+    margin): the tube's transverse reach at either sample (|X_k| at the foot is at most its larger value at the
+    ends), twice the Fresnel widening and the along-tangent offset of a curved chord, widened by 1e-9 relative and
+    1 nm for rounding (docs/physics.md §11, "The search box")."""
     tube = max(_half_width(sa, grid.dgamma[0], grid.dgamma[1], grid.w_min),
                _half_width(sb, grid.dgamma[0], grid.dgamma[1], grid.w_min))  # fmt: skip
-    return tube + 2.0 * chord_widening(grid, sa, sb)
+    reach = tube + 2.0 * chord_widening(grid, sa, sb) + _foot_offset_bound(sa, sb)
+    return reach * (1.0 + 1e-9) + 1e-9
 
 
 @nb.njit(**NJIT_FLAGS)

@@ -20,6 +20,8 @@ import math
 import numba as nb
 import numpy as np
 
+from bentray.engine.beam_field import beam_grid
+from bentray.engine.field_buffers import FieldGrid
 from bentray.engine.kernels import beams
 
 
@@ -180,3 +182,105 @@ def test_ring_columns_skipped_only_when_no_image_reaches_the_box() -> None:
     s = math.sqrt(0.5)
     assert not beams._images_stay_out(-7.0, 5.0, box, -s, 0.0, 5.0)
     assert beams._images_stay_out(-7.1, 5.0, box, -s, 0.0, 5.0)
+
+
+@nb.njit(cache=False)
+def _unit(v):
+    n = math.sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    return np.array([v[0] / n, v[1] / n, v[2] / n])
+
+
+@nb.njit(cache=False)
+def _reach_cases(grid, seed, n_chords, n_points):
+    """(owned points, owned points beyond chord_reach of their foot, largest |P - foot| / reach) over random chords
+    of one BeamGrid (its launch steps, w_min, Fresnel floor and caps): curved (the tangent turns by up to 0.05 rad),
+    tubes sheared (X2 nearly along X1) and floored (w_min at the tube's width), in random orientations; points at
+    the hat's corners and around."""
+    np.random.seed(seed)
+    owned = 0
+    beyond = 0
+    worst = 0.0
+    gc = beams.grid_values(grid)
+    dg1, dg2, w_min, fresnel_k = gc[0], gc[1], gc[2], gc[3]
+    for _ in range(n_chords):
+        arc = 10.0 ** np.random.uniform(1.0, 3.5)
+        length = np.random.uniform(0.5, 12.0)
+        t_a = _unit(np.random.normal(0.0, 1.0, 3))
+        turn = _unit(np.cross(t_a, np.random.normal(0.0, 1.0, 3))) * np.random.uniform(0.0, 0.05)
+        t_b = _unit(t_a + turn)
+        x_a = np.random.uniform(-50.0, 50.0, 3)
+        x_b = x_a + length * _unit(t_a + t_b)
+        sa = np.zeros(beams.SAMPLE_SIZE)
+        sb = np.zeros(beams.SAMPLE_SIZE)
+        scale1 = np.random.uniform(0.0, 2.0) * w_min / dg1
+        scale2 = np.random.uniform(0.2, 3.0) * w_min / dg2
+        for s, x, t, a in ((sa, x_a, t_a, arc), (sb, x_b, t_b, arc + length)):
+            e = _unit(np.cross(t, np.random.normal(0.0, 1.0, 3)))
+            f = np.cross(t, e)
+            shear = np.random.uniform(0.0, 0.1)
+            for i in range(3):
+                s[beams.S_X + i] = x[i]
+                s[beams.S_T + i] = t[i]
+                s[beams.S_X1 + i] = scale1 * e[i] + np.random.normal(0.0, 0.1) * scale1 * t[i]
+                s[beams.S_X2 + i] = scale2 * (e[i] + shear * f[i])
+            s[beams.S_ARC] = a
+        reach = beams.chord_reach(grid, sa, sb)
+        ta = beams.sample_values(sa)
+        tb = beams.sample_values(sb)
+        for _ in range(n_points):
+            u0 = np.random.uniform(0.0, 1.0)
+            g1 = dg1 * (1.0 - 1e-3 * np.random.random()) * (1.0 if np.random.random() < 0.5 else -1.0)
+            g2 = dg2 * (1.0 - 1e-3 * np.random.random()) * (1.0 if np.random.random() < 0.5 else -1.0)
+            if np.random.random() < 0.3:
+                g1 *= np.random.uniform(0.0, 1.3)
+                g2 *= np.random.uniform(0.0, 1.3)
+            v = 1.0 - u0
+            t = _unit(v * t_a + u0 * t_b)
+            x1 = (v * sa[beams.S_X1] + u0 * sb[beams.S_X1], v * sa[beams.S_X1 + 1] + u0 * sb[beams.S_X1 + 1],
+                  v * sa[beams.S_X1 + 2] + u0 * sb[beams.S_X1 + 2])  # fmt: skip
+            x2 = (v * sa[beams.S_X2] + u0 * sb[beams.S_X2], v * sa[beams.S_X2 + 1] + u0 * sb[beams.S_X2 + 1],
+                  v * sa[beams.S_X2 + 2] + u0 * sb[beams.S_X2 + 2])  # fmt: skip
+            w_fres = math.sqrt(fresnel_k * (arc + u0 * length)) if fresnel_k > 0.0 else 0.0
+            a11, a12, a22, _, _, e1, e2 = beams._transverse_basis(
+                x1, x2, (t[0], t[1], t[2]), dg1, dg2, w_min, arc + u0 * length, w_fres, gc[4], gc[5]
+            )
+            c1 = a11 * g1 + a12 * g2
+            c2 = a22 * g2
+            foot0 = v * x_a + u0 * x_b
+            p = foot0 + c1 * np.array([e1[0], e1[1], e1[2]]) + c2 * np.array([e2[0], e2[1], e2[2]])
+            if not beams.point_beam(ta, tb, gc, 0.9, p[0], p[1], p[2])[0]:
+                continue
+            owned += 1
+            da = (p[0] - x_a[0]) * t_a[0] + (p[1] - x_a[1]) * t_a[1] + (p[2] - x_a[2]) * t_a[2]
+            db = (p[0] - x_b[0]) * t_b[0] + (p[1] - x_b[1]) * t_b[1] + (p[2] - x_b[2]) * t_b[2]
+            u = da / (da - db)
+            q = p - ((1.0 - u) * x_a + u * x_b)
+            dist = math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2])
+            if dist > reach:
+                beyond += 1
+            worst = max(worst, dist / reach)
+    return owned, beyond, worst
+
+
+def test_owned_points_lie_within_the_chord_reach_of_their_foot() -> None:
+    """chord_reach bounds |P - foot| (Euclidean, so the search box's per-axis margin too) for every owned point:
+    40 beam grids (launch steps 1e-3..0.1 rad, w_min 0.1..10 m, half of them with the Fresnel floor) x 50 chords x
+    200 points at and around the hat's corners. Before 2026-12-05 the bound took max(|X2| dg2, w_min) for the second
+    tube term: sheared, floored tubes owned points up to 1.11 reach away (6,927 of 351,214 in the first version of
+    this test), which the search box missed. The worst ratio near 1 shows the points probe the bound's edge.
+    (A real BeamGrid, not a stand-in: chord_reach is cached, and a test-only type in its cache index would make
+    every later process that loads it import this test module.)"""
+    rng = np.random.default_rng(20261205)
+    owned = beyond = 0
+    worst = 0.0
+    for k in range(40):
+        dgamma = (10.0 ** rng.uniform(-3.0, -1.0), 10.0 ** rng.uniform(-3.0, -1.0))
+        fresnel_k = 0.0 if k % 2 == 0 else 10.0 ** rng.uniform(-3.0, -0.5)
+        fg = FieldGrid(np.zeros(3), np.ones(3), (2, 2, 2))
+        grid = beam_grid(fg, "incoherent", np.array([125.0]), 340.0, dgamma, 10.0 ** rng.uniform(-1.0, 1.0), 2,
+                         fresnel_k=fresnel_k)  # fmt: skip
+        n, b, w = _reach_cases(grid, 1000 + k, 50, 200)
+        owned, beyond, worst = owned + n, beyond + b, max(worst, w)
+    assert owned > 100_000
+    assert beyond == 0, (beyond, worst)
+    assert 0.8 < worst <= 1.0
