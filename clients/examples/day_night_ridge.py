@@ -15,7 +15,8 @@ the terrain and writes
     python clients/examples/day_night_ridge.py --start-server --quick --out DIR    # coarse smoke run
 
 ``--start-server`` runs ``python -m bentray.service serve`` on a free local port for the study.
-Ray acoustics leaves geometric shadows empty (NaN): such cells are blank in the maps and in the CSV.
+Geometric shadows get the refractive-shadow model's level (the field's ``field_source`` 3); cells no model
+reaches are NaN, blank in the maps and in the CSV.
 """
 
 from __future__ import annotations
@@ -89,6 +90,7 @@ def study_job(period: str, study: Study = FULL) -> dict[str, Any]:
             "shape": list(study.grid_shape),
             "frequencies_hz": list(study.bands_hz),
             "mode": "incoherent",
+            "heights": "above_ground",  # the map product: each column's points stand on the terrain under it
         },
         "outputs": ["field", "report"],
     }
@@ -134,7 +136,10 @@ def local_server() -> Iterator[str]:
 
 
 def level_above_ground(vti: Path, study: Study = FULL) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """x (nx,), y (ny,) and spl_a (nx, ny) in dB(A), linearly interpolated in z at the receiver height."""
+    """x (nx,), y (ny,) and spl_a (nx, ny) in dB(A) at RECEIVER_HEIGHT_M above the terrain: the field's heights are
+    above the ground (``field.heights = "above_ground"``), so the level is interpolated linearly between the two
+    grid levels around that height in every column. (Until 2026-12-05 the grid stood at absolute heights and the
+    interpolation took a point inside the ridge, whose level is NaN, wherever the terrain rose above a level.)"""
     import pyvista as pv
 
     grid = pv.read(vti)
@@ -143,14 +148,10 @@ def level_above_ground(vti: Path, study: Study = FULL) -> tuple[np.ndarray, np.n
     origin, spacing = study.grid_origin, study.grid_spacing
     x = origin[0] + spacing[0] * np.arange(nx)
     y = origin[1] + spacing[1] * np.arange(ny)
-    z = origin[2] + spacing[2] * np.arange(nz)
-    target = ridge_height(x) + RECEIVER_HEIGHT_M
-    out = np.full((nx, ny), np.nan)
-    for i in range(nx):
-        k = int(np.clip(np.searchsorted(z, target[i]) - 1, 0, nz - 2))
-        w = (target[i] - z[k]) / (z[k + 1] - z[k])
-        out[i] = (1 - w) * spl[i, :, k] + w * spl[i, :, k + 1]
-    return x, y, out
+    z = origin[2] + spacing[2] * np.arange(nz)  # heights above the ground
+    k = int(np.clip(np.searchsorted(z, RECEIVER_HEIGHT_M) - 1, 0, nz - 2))
+    w = (RECEIVER_HEIGHT_M - z[k]) / (z[k + 1] - z[k])
+    return x, y, (1 - w) * spl[:, :, k] + w * spl[:, :, k + 1]
 
 
 def plot(x: np.ndarray, y: np.ndarray, maps: dict[str, np.ndarray], path: Path) -> None:
@@ -172,7 +173,7 @@ def plot(x: np.ndarray, y: np.ndarray, maps: dict[str, np.ndarray], path: Path) 
         fig.colorbar(im, ax=ax, label="dB(A)")
     diff = maps["night"] - maps["day"]
     im = axes[2].imshow(diff.T, origin="lower", extent=extent, aspect="auto", cmap="RdBu_r", vmin=-20, vmax=20)
-    axes[2].set_title("night - day (blank: no day rays, a geometric shadow)")
+    axes[2].set_title("night - day (blank: no level in one of the periods)")
     axes[2].set_ylabel("y (m)")
     fig.colorbar(im, ax=axes[2], label="dB")
     j = int(np.argmin(np.abs(y)))
