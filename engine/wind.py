@@ -243,7 +243,7 @@ def sizing_quantity(
 # ---------------------------------------------------------------------------------------------
 # njit: value and exact gradient at one point (kernel side)
 # ---------------------------------------------------------------------------------------------
-@nb.njit(**NJIT_FLAGS)
+@njit_inline
 def _speed_up(params, xx, dz):
     """(du, d du/dX, d du/d dz) of the ridge speed-up at X = xx, height dz above the surface."""
     k = params[8] * params[5] * params[6]
@@ -273,7 +273,7 @@ def _ridge_surface(params, x0):
     return xx, h, h1, h2
 
 
-@nb.njit(**NJIT_FLAGS)
+@njit_inline
 def _speed(code, params, x):
     """(|u|, d|u|/dx, d|u|/dz) at point x (3,); |u| does not depend on y."""
     a = params[0]
@@ -375,7 +375,7 @@ def wind_values(params):
     return (p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8], p[9])
 
 
-@nb.njit(**NJIT_FLAGS)
+@njit_inline
 def speed_at(code, params, x):
     """(|u|, d|u|/dx, d|u|/dz) at point x (m; 3-tuple or (3,) array) for a wind code other than WIND_NONE: the
     one evaluation :func:`along_from_speed` turns into the value along any azimuth (the traversal evaluates it once per
@@ -391,7 +391,7 @@ def along_from_speed(params, speed, e):
     return cos_a * speed[0], cos_a * speed[1], 0.0, cos_a * speed[2]
 
 
-@nb.njit(**NJIT_FLAGS)
+@njit_inline
 def wind_value(code, params, x, e):
     """(w, dw/dx, dw/dy, dw/dz): w = u(x) . e (m/s) at point x (m) for the horizontal unit azimuth e, and its
     exact gradient (1/s). x, e : 3-tuples or (3,) arrays; params : the wind's parameters (array, or the tuple of
@@ -414,7 +414,7 @@ def wind_at(code, params, x, e, out_grad):
     return w
 
 
-@nb.njit(**NJIT_FLAGS)
+@njit_inline
 def effective_value(curve, c_ref, m, g, code, params, x, e):
     """:func:`effective_quantity` from values: (m_eff, state, g_eff x, y, z, w, grad w x, y, z).
 
@@ -427,7 +427,7 @@ def effective_value(curve, c_ref, m, g, code, params, x, e):
     return _effective(curve, c_ref, m, g, wind_value(code, params, x, e))
 
 
-@nb.njit(**NJIT_FLAGS)
+@njit_inline
 def effective_value_at(curve, c_ref, m, g, params, speed, e):
     """:func:`effective_value` with the wind's speed at the point already evaluated (speed = :func:`speed_at`'s,
     code not WIND_NONE): the same tuple, bit for bit."""

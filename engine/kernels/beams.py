@@ -368,7 +368,7 @@ def chord_far(grid, sa, sb):
     )
 
 
-@nb.njit(**NJIT_FLAGS)
+@njit_inline
 def _index_range(lo, hi, origin, spacing, n):
     """Grid indices [i0, i1] whose coordinate lies in [lo, hi] (empty when i0 > i1)."""
     i0 = int(math.ceil((lo - origin) / spacing))

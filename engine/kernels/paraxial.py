@@ -242,7 +242,7 @@ def plain_terms(par, g, seg):
     seg[16] = 0.0
 
 
-@nb.njit(**NJIT_FLAGS)
+@njit_inline
 def chord_face(planes, neighbours, x, d):
     """The straight chord from x along d to the first face ahead: (length L in metres, face index), or
     (inf, -1) when no face is ahead. planes (K, 4), neighbours (K,) of one cell."""

@@ -144,7 +144,7 @@ class Rays(NamedTuple):
     out_par: np.ndarray
 
 
-@nb.njit(**NJIT_FLAGS)
+@njit_inline
 def _media_at(media_ref, ref_point, gradient, cell, x):
     return (
         media_ref[cell]
@@ -175,7 +175,7 @@ def _effective_into(eff, g_eff):
     return m_eff
 
 
-@nb.njit(**NJIT_FLAGS)
+@njit_inline
 def _chord_middle(planes, neighbours, x, d, out):
     """Middle of the straight chord from x along d to the cell's boundary, into out (3,); False if none.
 
