@@ -84,6 +84,16 @@ def _run(meshes, method, src, d, max_reflections):
     return trace_linked(lm, "parabolic", C_REF, orig, d, cells, **kw)
 
 
+def test_terrain_media_reports_the_whole_build_and_the_mesh_split(plane_meshes):
+    """build_terrain_media's build_time_s is the whole build (a number, as every representation reports it); the
+    mesh builder's split stays beside it (until 2026-12-05 the total overwrote the split)."""
+    stats = plane_meshes["embedded"].stats
+    split = stats["mesh_build_time_s"]
+    assert isinstance(stats["build_time_s"], float)
+    assert set(split) >= {"triangulation_2d", "tables", "gradients", "total"}
+    assert 0.0 < split["total"] <= stats["build_time_s"]
+
+
 # ---------------------------------------------------------------------------------------------------
 # (1) mirror images: the linked traversal, and the embedded one built through build_terrain_media
 # (tests/mesh/test_terrain_mesh.py checks the embedded mesh from build_terrain_mesh the same way)
