@@ -177,12 +177,7 @@ def run_conditions(job: Job, base_dir: Path | None, *, progress: ProgressFn, exe
             reused_from, base = media_by_key[key]
             prepared = Prepared(cjob, frame, base.profile, base.wind, surfaces, base.media, base.log)
         else:
-            log = StageLog(
-                dict(scene_log.timings),
-                dict(scene_log.stages),
-                dict(scene_log.compile_s),
-                scene_log.compiled_functions,
-            )
+            log = scene_log.copy()
             profile, wind, media = prepare_medium(cjob, base_dir, surfaces, log, lambda s, f: None)
             prepared = Prepared(cjob, frame, profile, wind, surfaces, media, log)
             media_by_key[key] = (cond.name, prepared)

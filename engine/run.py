@@ -116,12 +116,7 @@ def run_prepared(prepared: Prepared, *, progress: ProgressFn, executor: Executor
         prepared.media,
     )
     report_progress, runner = progress, executor
-    log = StageLog(
-        dict(prepared.log.timings),
-        dict(prepared.log.stages),
-        dict(prepared.log.compile_s),  # the mesh stage's kernels compile on a first run too
-        prepared.log.compiled_functions,
-    )
+    log = prepared.log.copy()  # the scene and mesh stages' timings and compilation carry on
     fan = stages.launch_fan(job)
     start_cells = stages.stage_locate(job, media, surfaces, fan.source, log)
     setup = stages.stage_field_setup(job, profile, media.mesh, surfaces, fan.source, log)

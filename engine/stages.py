@@ -72,6 +72,10 @@ class StageLog:
     compile_s: dict[str, float] = field(default_factory=dict)  # Numba compilation inside each stage (s)
     compiled_functions: int = 0
 
+    def copy(self) -> StageLog:
+        """An independent log holding everything recorded so far (a run continues from its prepared stages)."""
+        return StageLog(dict(self.timings), dict(self.stages), dict(self.compile_s), self.compiled_functions)
+
     @contextmanager
     def timed(self, name: str) -> Iterator[None]:
         """Time the ``with`` body as ``timings[name]`` (seconds, compilation included) and the Numba

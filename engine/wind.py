@@ -274,8 +274,10 @@ def _ridge_surface(params, x0):
 
 
 @njit_inline
-def _speed(code, params, x):
-    """(|u|, d|u|/dx, d|u|/dz) at point x (3,); |u| does not depend on y."""
+def speed_at(code, params, x):
+    """(|u|, d|u|/dx, d|u|/dz) at point x (m; 3-tuple or (3,) array) for a wind code other than WIND_NONE; |u| does
+    not depend on y. :func:`along_from_speed` turns one evaluation into the value along any azimuth (the traversal
+    evaluates it once per point, for the ray's azimuth and its turn)."""
     a = params[0]
     z_g = params[1]
     if code == WIND_LOG:
@@ -317,7 +319,7 @@ def _speed_up_second(params, xx, dz):
 def speed_hessian(code, params, x):
     """|u| and its exact first and second derivatives at point x (3,): the tuple (|u|, d/dx, d/dz, d2/dx2,
     d2/dx dz, d2/dz2) (|u| does not depend on y; a tuple, not an array, so that the paraxial kernels' hot
-    loop makes no array views). The branches are _speed's: the log law above z_g, the ridge's speed-up
+    loop makes no array views). The branches are speed_at's: the log law above z_g, the ridge's speed-up
     growing linearly in height below z_g, calm at and below the surface. Over the ridge the height above the
     surface is dz = z - z0 - h(X): d/dx = d/dX - h' d/d dz, and d2/dx2 = U_XX - 2 h' U_Xdz + h'^2 U_dzdz -
     h'' U_dz."""
@@ -376,14 +378,6 @@ def wind_values(params):
 
 
 @njit_inline
-def speed_at(code, params, x):
-    """(|u|, d|u|/dx, d|u|/dz) at point x (m; 3-tuple or (3,) array) for a wind code other than WIND_NONE: the
-    one evaluation :func:`along_from_speed` turns into the value along any azimuth (the traversal evaluates it once per
-    point for the ray's azimuth and its turn)."""
-    return _speed(code, params, x)
-
-
-@njit_inline
 def along_from_speed(params, speed, e):
     """(w, dw/dx, dw/dy, dw/dz) of :func:`wind_value` from the speed at the point, speed = :func:`speed_at`'s
     (|u|, d|u|/dx, d|u|/dz), for the horizontal unit azimuth e: the same arithmetic, bit for bit."""
@@ -398,7 +392,7 @@ def wind_value(code, params, x, e):
     :func:`wind_values`). code WIND_NONE gives zeros."""
     if code == WIND_NONE:
         return 0.0, 0.0, 0.0, 0.0
-    return along_from_speed(params, _speed(code, params, x), e)
+    return along_from_speed(params, speed_at(code, params, x), e)
 
 
 @nb.njit(**NJIT_FLAGS)

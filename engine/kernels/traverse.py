@@ -476,10 +476,10 @@ def trace_slots(mesh, prm, fld, paths, rays, slots, beam):
             par_on = (deposit_on or want_par) and cell_start >= 0
             mid_ok = False
             m_raw = 0.0
+            # the beam ray used through a borrowed view (no reference counts per chord sample); bray_held keeps its
+            # arrays to the ray's end
             bray_held = beams.new_ray(beam.grid.omega.shape[0])
-            bray = borrow(
-                bray_held
-            )  # no reference counts per chord sample; bray_held keeps the arrays to the ray's end
+            bray = borrow(bray_held)
             if deposit_on and rays.f_weights.shape[1] == bray.amp0.shape[0]:  # beams: f_weights = directivity factors
                 for f in range(bray.amp0.shape[0]):
                     bray.amp0[f] = rays.f_weights[i_ray, f]

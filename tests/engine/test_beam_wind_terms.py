@@ -131,9 +131,9 @@ def test_closed_form_wind_terms_with_the_chord_middle_match_the_central_differen
 @pytest.mark.parametrize("kind", sorted(WINDS))
 def test_wind_speed_hessian_matches_differences_of_its_gradient(kind):
     """wind.speed_hessian's second derivatives against central differences (step 1e-4 m) of the exact gradient
-    (wind._speed), and its value and gradient equal _speed's, over the ridge's slopes and in the layer below
+    (wind.speed_at), and its value and gradient equal speed_at's, over the ridge's slopes and in the layer below
     z_g: within 2e-6 relative to the largest second derivative."""
-    from bentray.engine.wind import _speed
+    from bentray.engine.wind import speed_at
 
     code, params = wind_spec(kind, WINDS[kind])
     z_g = float(params[1])
@@ -147,14 +147,14 @@ def test_wind_speed_hessian_matches_differences_of_its_gradient(kind):
             surface += 40.0 * 200.0**2 / ((x[0] - params[7]) ** 2 + 200.0**2)
             x[2] = surface + rng.uniform(0.02, 60.0)
         out = np.array(speed_hessian(code, params, x))
-        u, ux, uz = _speed(code, params, x)
+        u, ux, uz = speed_at(code, params, x)
         assert out[0] == u and out[1] == ux and out[2] == uz
         h = 1e-4
         if abs(x[2] - surface - z_g) < 0.01 or x[2] - surface < 0.01:  # no difference across a branch edge
             continue
 
         def grad(y):
-            return np.array(_speed(code, params, y)[1:])
+            return np.array(speed_at(code, params, y)[1:])
 
         gx = (grad(x + [h, 0, 0]) - grad(x - [h, 0, 0])) / (2 * h)
         gz = (grad(x + [0, 0, h]) - grad(x - [0, 0, h])) / (2 * h)
