@@ -43,7 +43,7 @@ import numba as nb
 import numpy as np
 
 from bentray.engine.acoustics.ground import _table_cell, q_at_cell
-from bentray.engine.constants import NJIT_FLAGS
+from bentray.engine.constants import NJIT_FLAGS, NJIT_NO_NRT
 from bentray.engine.kernels.llvm_inline import njit_inline
 
 # Sample record layout (float64): position, unit tangent, time, arc, X1, X2, P1, P2, slowness 1/c,
@@ -821,7 +821,7 @@ def _images_stay_out(px, py, box_xy, m0, m1, reach):
     return shift + RING_TOL_M < math.sqrt(dx * dx + dy * dy)
 
 
-@nb.njit(**NJIT_FLAGS)
+@nb.njit(**NJIT_NO_NRT)
 def deposit_chord(grid, acc, slot, chord, scratch, terms):
     """Add the beam of the chord from sample ``sa`` to sample ``sb`` to every grid point it owns, and, where the
     grid has mirror planes (BeamGrid.mirror), its beam at the ground images of the points near the ground to the
@@ -842,7 +842,9 @@ def deposit_chord(grid, acc, slot, chord, scratch, terms):
     receives its direct term before its image's, as when all points preceded all images.
 
     Everything a point needs is bound once per chord (the samples and grid constants as tuples of values, the
-    accumulator arrays as locals): the per-point code binds no array, so it costs no reference counting.
+    accumulator arrays as locals): the per-point code binds no array, so it costs no reference counting; the
+    kernel itself is compiled without it (NJIT_NO_NRT: it allocates nothing and keeps no array past the call,
+    and counting the ~30 arrays of its arguments cost 8 % of the deposits, docs/physics.md §9).
     """
     sa = chord[0]
     sb = chord[1]
@@ -1006,7 +1008,7 @@ def points_box(grid, pts, sa, sb):
     return i0, i1, j0, j1, k0, k1
 
 
-@nb.njit(**NJIT_FLAGS)
+@nb.njit(**NJIT_NO_NRT)
 def deposit_points(grid, acc, pts, slot, chord, scratch, terms):
     """The same for a list of receiver points (BeamPoints: binned on a coarse regular grid)."""
     if pts.xyz.shape[0] == 0:
