@@ -114,6 +114,8 @@ METHOD_CODES = {
 # right-hand side went from 260 to 105 ns), and so are advance and controlled_step, which have one hot
 # call site (an Euler step of the tracer: 480 -> 350 ns CPU; +2 s of compilation). rk_step is not:
 # inlining it into its four call sites gained another 30 % but doubled the cold compile (24 -> 52 s CPU).
+# Made njit_inline on 2026-12-05 (evening) it gained nothing: Dormand-Prince on A-LD at 1e-4 took 5.75-5.77 ms
+# against 5.74-5.79 ms as a call (the probe of README's A-LD row), so it stays a call.
 MAX_STAGES = 7
 STAGES = np.array([1, 2, 4, 7], dtype=np.int64)
 # New right-hand-side evaluations per step (k1 = f(y0) is given; DOPRI5's 7th stage is f(y1), FSAL).
