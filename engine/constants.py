@@ -129,11 +129,12 @@ TIME_SOLVE_ITERS = 50
 # error_model="numpy": float division by zero gives inf/nan (checked explicitly) instead of raising,
 # which also lets numba drop the per-division zero checks in the hot loops.
 NJIT_FLAGS: dict[str, Any] = {"cache": True, "fastmath": False, "nogil": True, "error_model": "numpy"}
-# For called kernels that allocate nothing and keep no reference to an array past the call (the beams' per-chord
-# search and deposits): Numba's reference counting off ("_nrt", Numba's own switch for code without its runtime),
-# so the dozens of arrays in a call's tuples (grid, accumulators, samples, tables) cost no atomic increments and
-# decrements per call. The caller holds every array for the call's duration; an allocation inside such a kernel
-# fails to compile. docs/physics.md §9; tests/engine/test_llvm_inline.py checks the IR.
+# For called kernels that allocate nothing and keep no reference to an array past the call (the beams' deposit
+# kernels, beams.deposit_chord and deposit_points): Numba's reference counting off ("_nrt", Numba's own switch for
+# code without its runtime), so the ~30 arrays of a call's arguments (grid, accumulators, the chord's samples and
+# tables) cost no atomic increments and decrements per call. The caller holds every array for the call's
+# duration; an allocation inside such a kernel fails to compile. docs/physics.md §9;
+# tests/engine/test_no_nrt_kernels.py.
 NJIT_NO_NRT: dict[str, Any] = {**NJIT_FLAGS, "_nrt": False}
 PARALLEL_FLAGS: dict[str, Any] = {
     "cache": True,

@@ -95,19 +95,11 @@ def terrain_height_at(terrain: HeightGrid | TriangleSurface, xy: np.ndarray) -> 
     xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
     out = np.full(xy.shape[0], np.nan)
     if isinstance(terrain, HeightGrid):
-        x, y, z = terrain.x, terrain.y, terrain.z
+        from bentray.engine.mesh.bilinear_kernel import bilinear_heights  # numba, only when a grid is sampled
+
+        x, y, z = (np.ascontiguousarray(a, dtype=np.float64) for a in (terrain.x, terrain.y, terrain.z))
         ok = (xy[:, 0] >= x[0]) & (xy[:, 0] <= x[-1]) & (xy[:, 1] >= y[0]) & (xy[:, 1] <= y[-1])
-        px, py = xy[ok, 0], xy[ok, 1]
-        j = np.clip(np.searchsorted(x, px, side="right") - 1, 0, x.size - 2)
-        i = np.clip(np.searchsorted(y, py, side="right") - 1, 0, y.size - 2)
-        u = (px - x[j]) / (x[j + 1] - x[j])
-        v = (py - y[i]) / (y[i + 1] - y[i])
-        out[ok] = (
-            (1 - u) * (1 - v) * z[i, j]
-            + u * (1 - v) * z[i, j + 1]
-            + (1 - u) * v * z[i + 1, j]
-            + u * v * z[i + 1, j + 1]
-        )
+        out[ok] = bilinear_heights(x, y, z, np.ascontiguousarray(xy[ok]))  # the terrain mesh's own lookup
         return out
     tri = terrain.triangles
     ip, it, bary = locate_points_2d(xy, terrain.vertices[tri][:, :, :2])
