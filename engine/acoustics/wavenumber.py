@@ -149,10 +149,17 @@ def ffp_field(
     beta = 0.0 if impedance is None or not np.isfinite(impedance) else k0 / complex(impedance)
     js = int(round(zs / h))
     jr = np.floor(zr / h).astype(int)
-    need = sorted({js + o for o in range(-2, 3)} | {int(j) + o for j in jr for o in range(-1, 4)})
-    need = [j for j in need if j >= 0] + [0, 1, 2]
-    j_hi = max(need) + 2
-    keep = set(need)  # only the rows the derivatives and the receivers' stencils read (memory: rows x n_k)
+    # the rows each recursion must keep: the source's derivative stencil, the rows 0..2 (a source on the ground),
+    # and the interpolation stencils of the receivers it serves: phi_< those at or below the source, phi_> those
+    # above (memory: rows x n_k). phi_< is marched only as high as its rows: marched to receivers far above the
+    # source, its evanescent wavenumbers grew so much that their renormalisation underflowed the source's rows to
+    # 0 and the Wronskian became 0 / 0 (the night-noise-map example's 500 Hz band was nan).
+    source_rows = {js + o for o in range(-2, 3)} | {0, 1, 2}
+    below = zr <= zs
+    keep = {j for j in source_rows | {int(j) + o for j in jr[below] for o in range(-1, 4)} if j >= 0}
+    keep_dn = {j for j in source_rows | {int(j) + o for j in jr[~below] for o in range(-1, 4)} if j >= 0}
+    j_hi = max(keep) + 2  # phi_<'s top row
+    j_hi_dn = max(keep_dn) + 2  # phi_>'s stored rows lie at and below this one
     cc = h * h / 12.0
     # phi_< up from the ground (Taylor start to 4th order, then Numerov)
     up: dict[int, np.ndarray] = {}
@@ -185,10 +192,10 @@ def ffp_field(
         )
         p_next, p_cur = p_cur, p_prev
         j -= 1
-        if j <= j_hi:
+        if j <= j_hi_dn:
             if j % _RESCALE_EVERY == 0:
                 p_next, p_cur = _renormalise(p_next, p_cur, dn)
-            if j in keep:
+            if j in keep_dn:
                 dn[j] = p_cur
         elif j % _RESCALE_EVERY == 0:
             s = np.abs(p_cur) + 1e-300

@@ -77,3 +77,23 @@ def test_renormalising_with_a_receiver_on_every_row_keeps_the_low_receivers():
     p_full = np.array([full.pressure(r, np.full(r.size, i)) for i in range(low.size)])
     p_alone = np.array([alone.pressure(r, np.full(r.size, i)) for i in range(low.size)])
     np.testing.assert_allclose(p_full, p_alone, rtol=1e-9)
+
+
+def test_receivers_far_above_the_source_leave_the_source_rows_alive():
+    """The night-noise-map example (log profile, source 2 m up, receivers to 57.5 m, 500 m map, z_top 135 m): at
+    575-694 Hz the upward recursion, marched to the top receiver, renormalised its evanescent wavenumbers by
+    factors so large that their rows at the source underflowed to 0, the Wronskian there became 0 / 0 and the
+    band's whole spectrum nan (the example's 500 Hz map: 203,788 of 204,020 points without a level). Only the
+    rows at and below the source are read from that recursion. Oracle: finite everywhere, and the receivers up
+    to 16 m give the pressures they give alone (where nothing grows beyond double precision)."""
+    c = lambda z: 340.0 + np.log1p(np.asarray(z, float))  # noqa: E731 - the example's profile
+    heights = np.arange(0.5, 58.0, 3.0)
+    r = np.array([50.0, 200.0, 600.0])
+    for f in (575.0, 694.0):
+        full = ffp_field(f, c, None, 2.0, heights, 707.2, 135.0)
+        low = ffp_field(f, c, None, 2.0, heights[heights <= 16.0], 707.2, 135.0)
+        assert np.all(np.isfinite(full.psi)), f
+        n_low = low.heights_m.size
+        p_full = np.array([full.pressure(r, np.full(r.size, i)) for i in range(n_low)])
+        p_low = np.array([low.pressure(r, np.full(r.size, i)) for i in range(n_low)])
+        np.testing.assert_allclose(p_full, p_low, rtol=1e-9)
