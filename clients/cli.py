@@ -18,6 +18,7 @@ Heavy imports (the engine, numba, pyvista) happen inside the command that needs 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from collections.abc import Callable, Iterator, Sequence
@@ -28,11 +29,13 @@ import bentray
 from bentray.engine.errors import BentrayError
 
 if TYPE_CHECKING:
+    from bentray.engine.preview_process import PreviewWorker
     from bentray.engine.result import JobOutcome
     from bentray.scenes.schema import Job
 
 # Errors reported as one line with exit status 1: bentray's own (engine/errors.py) and the usual
 # input/resource failures. Anything else is a bug and keeps its traceback.
+_PREVIEW_GLANCE_BYTES = 1_000_000  # larger job files are not read twice to start the preview process early
 _RUN_ERRORS: tuple[type[BaseException], ...] = (
     BentrayError,
     ValueError,
@@ -172,8 +175,36 @@ def _check(job: Job, job_path: Path) -> None:
         raise CommandError(f"{job_path}: invalid job ({len(lines)} error(s)):\n" + "\n".join(lines), code=2)
 
 
+def _start_preview(job_path: Path) -> PreviewWorker | None:
+    """Start preview.png's drawing process (engine/preview_process.py) when the job file lists 'field' in
+    its outputs: a glance at the JSON before validation, so the child imports matplotlib on the idle core
+    while this process validates the job and builds the mesh. A file that is not such JSON starts
+    nothing (validation reports it); a job that turns out invalid just stops the child."""
+    from bentray.engine.preview_process import PreviewWorker
+
+    try:
+        if job_path.stat().st_size > _PREVIEW_GLANCE_BYTES:
+            return None
+        data = json.loads(job_path.read_bytes())
+    except (OSError, ValueError, RecursionError):
+        return None
+    outputs = data.get("outputs") if isinstance(data, dict) else None
+    if isinstance(outputs, list) and "field" in outputs:
+        return PreviewWorker.start()
+    return None
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     job_path = Path(args.job)
+    preview = None if args.check else _start_preview(job_path)
+    try:
+        return _run(args, job_path, preview)
+    finally:
+        if preview is not None:
+            preview.close()
+
+
+def _run(args: argparse.Namespace, job_path: Path, preview: PreviewWorker | None) -> int:
     job = _load(job_path)
     out_dir = Path(args.out)
     if out_dir.exists() and not out_dir.is_dir():
@@ -201,7 +232,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     finally:
         progress.close()
     t_write = time.perf_counter()
-    written = write_outcome(outcome, list(job.outputs), out_dir)
+    written = write_outcome(outcome, list(job.outputs), out_dir, preview_worker=preview)
     write_s = time.perf_counter() - t_write
     print(_summary(job, outcome, written, time.perf_counter() - t0, write_s))
     return 0

@@ -16,6 +16,7 @@ import math
 import os
 import shutil
 import tempfile
+import warnings
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 from typing import Any, Final
@@ -23,6 +24,7 @@ from typing import Any, Final
 import numpy as np
 
 from bentray.engine.constants import STATUS_NAMES
+from bentray.engine.preview_process import PreviewRequest, PreviewWorker
 from bentray.engine.result import JobOutcome, MeshGeometry, RayPaths, TraceResult
 
 __all__ = [
@@ -301,27 +303,30 @@ def _write_field(outcome: JobOutcome, path: Path) -> None:
     write_field_vti(path, fa.grid.origin, fa.grid.spacing, fa.grid.shape, fa.arrays, field_data)
 
 
-def _write_preview(outcome: JobOutcome, path: Path) -> None:
-    from bentray.engine.field_output import write_preview_png
-
+def _preview_request(outcome: JobOutcome, path: Path) -> PreviewRequest:
+    """(path, args, kwargs) of ``write_preview_png`` for the job's field (drawn here or in a child process)."""
     fa = outcome.field
     assert fa is not None
     name, label = fa.preview_array()
-    write_preview_png(
-        path,
-        fa.grid.origin,
-        fa.grid.spacing,
-        fa.grid.shape,
-        fa.arrays[name],
-        source_xyz=fa.preview["source_xyz"],
-        receiver_z=fa.preview["receiver_z"],
-        title=fa.preview["title"],
-        label=label,
-        ground_z=fa.preview.get("ground_z"),
-        receiver_height=fa.preview.get("receiver_height_m"),
-        classes=name.startswith("spl"),  # levels: DIN 18005 classes; transmission loss: a continuous scale
-        footprints=fa.preview.get("footprints", ()),  # plan rings (local metres) when the field stage gives them
-    )
+    args = (fa.grid.origin, fa.grid.spacing, fa.grid.shape, fa.arrays[name])
+    kwargs = {
+        "source_xyz": fa.preview["source_xyz"],
+        "receiver_z": fa.preview["receiver_z"],
+        "title": fa.preview["title"],
+        "label": label,
+        "ground_z": fa.preview.get("ground_z"),
+        "receiver_height": fa.preview.get("receiver_height_m"),
+        "classes": name.startswith("spl"),  # levels: DIN 18005 classes; transmission loss: a continuous scale
+        "footprints": fa.preview.get("footprints", ()),  # plan rings (local metres) when the field stage gives them
+    }
+    return path, args, kwargs
+
+
+def _write_preview(outcome: JobOutcome, path: Path) -> None:
+    from bentray.engine.field_output import write_preview_png
+
+    png, args, kwargs = _preview_request(outcome, path)
+    write_preview_png(png, *args, **kwargs)
 
 
 def write_receivers_csv(table: Any, path: str | Path) -> Path:
@@ -368,7 +373,16 @@ def _planned_files(outcome: JobOutcome, outputs: Sequence[str]) -> list[str]:
     return files
 
 
-def write_outcome(outcome: JobOutcome, outputs: Sequence[str], out_dir: str | Path) -> list[Path]:
+def _warn_preview_fallback(worker: PreviewWorker) -> None:
+    warnings.warn(f"preview.png drawn in this process: {worker.fallback_reason}", RuntimeWarning, stacklevel=3)
+
+
+def write_outcome(
+    outcome: JobOutcome,
+    outputs: Sequence[str],
+    out_dir: str | Path,
+    preview_worker: PreviewWorker | None = None,
+) -> list[Path]:
     """Write the requested outputs into ``out_dir``; all files or none.
 
     "rays" -> rays.csv (and rays.vtp when ``trace.paths`` is present), "paths" -> rays.vtp (an error
@@ -377,6 +391,11 @@ def write_outcome(outcome: JobOutcome, outputs: Sequence[str], out_dir: str | Pa
     all were written; on any failure ``out_dir`` is left as it was (not even created). After success,
     output files of an earlier run that this run did not produce (names in :data:`OUTPUT_FILES`) are
     removed so the directory never mixes two runs. Returns the written paths in writing order.
+
+    ``preview_worker`` (:class:`bentray.engine.preview_process.PreviewWorker`, started when the job began):
+    preview.png is drawn there while the other files are written here; if the child fails for any reason
+    of its own the preview is drawn here instead, with the same arguments (same file, same errors). The
+    worker is closed on return.
     """
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
@@ -396,14 +415,28 @@ def write_outcome(outcome: JobOutcome, outputs: Sequence[str], out_dir: str | Pa
     parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".tmp", dir=parent))
     try:
+        child = None  # the worker drawing preview.png, once it accepted the request
+        if preview_worker is not None and "preview.png" in files:  # first, so it draws while we write
+            request = _preview_request(outcome, staging / "preview.png")
+            if preview_worker.submit(staging / ".preview-request.pkl", request):
+                child = preview_worker
+            else:
+                _warn_preview_fallback(preview_worker)
         for name in files:
+            if name == "preview.png" and child is not None:
+                continue
             writers[name](staging / name)
+        if child is not None and not child.wait():
+            _warn_preview_fallback(child)
+            writers["preview.png"](staging / "preview.png")
         out_dir.mkdir(exist_ok=True)
         written = []
         for name in files:
             os.replace(staging / name, out_dir / name)
             written.append(out_dir / name)
     finally:
+        if preview_worker is not None:
+            preview_worker.close()
         shutil.rmtree(staging, ignore_errors=True)
     for name in OUTPUT_FILES:
         if name not in files:
