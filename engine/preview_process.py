@@ -31,6 +31,7 @@ from typing import Any
 
 __all__ = ["PREVIEW_TIMEOUT_S", "PreviewWorker", "PreviewRequest", "main"]
 
+_CHILD_MODULE = "bentray.engine.preview_process"
 PREVIEW_TIMEOUT_S = 120.0  # the child's whole life after a request; the parent then draws it itself
 
 PreviewRequest = tuple[Path, tuple[Any, ...], dict[str, Any]]  # (png path, args, kwargs) of write_preview_png
@@ -53,12 +54,13 @@ class PreviewWorker:
 
     @classmethod
     def start(cls, command: Sequence[str] | None = None, timeout_s: float = PREVIEW_TIMEOUT_S) -> PreviewWorker:
-        """Start the child (``command``, default ``python -m bentray.engine.preview_process``, the
-        parent's interpreter and environment); ``timeout_s``: how long ``wait`` waits after the request."""
+        """Start the child (``command``, default ``python -P -m bentray.engine.preview_process``: the
+        parent's interpreter and environment, and ``-P`` so that a module in the working directory cannot
+        shadow numpy or matplotlib); ``timeout_s``: how long ``wait`` waits after the request."""
         worker = cls(timeout_s)
         try:
             worker.process = subprocess.Popen(
-                list(command) if command is not None else [sys.executable, "-m", "bentray.engine.preview_process"],
+                list(command) if command is not None else [sys.executable, "-P", "-m", _CHILD_MODULE],
                 stdin=subprocess.PIPE,
                 stdout=subprocess.PIPE,
                 stderr=subprocess.DEVNULL,

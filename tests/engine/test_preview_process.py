@@ -127,3 +127,13 @@ def test_cli_starts_the_child_only_for_a_field(tmp_path, monkeypatch, text, star
     cli._start_preview(job)
     assert bool(calls) is started
     assert cli._start_preview(Path(tmp_path / "missing.json")) is None
+
+
+def test_working_directory_cannot_shadow_the_childs_imports(tmp_path, monkeypatch, parent_png):
+    """``python -P``: a matplotlib.py where the user runs bentray is not imported by the child."""
+    (tmp_path / "matplotlib.py").write_text("raise SystemExit(7)\n")
+    monkeypatch.chdir(tmp_path)
+    worker = PreviewWorker.start()
+    _no_warning_write(_field_outcome(), tmp_path / "res", worker)
+    assert worker.fallback_reason is None
+    assert (tmp_path / "res" / "preview.png").read_bytes() == parent_png
