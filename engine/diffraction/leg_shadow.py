@@ -41,12 +41,13 @@ from collections.abc import Callable
 from functools import cache
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy.interpolate import CubicSpline
 
 from bentray.engine.acoustics.creeping import LimitingRay, creeping_modes, limiting_ray
 from bentray.engine.acoustics.ground import delany_bazley_impedance
 
-__all__ = ["creeping_rate", "layer_rate", "leg_shadow"]
+__all__ = ["creeping_rate", "layer_rate", "layer_rates", "leg_shadow"]
 
 _U_MIN, _U_MAX, _U_N = 0.1, 3000.0, 90  # table of u = (k0 / a)^(1/3) (dimensionless), log-spaced
 _MODES = 6  # modes searched for the least attenuated one
@@ -105,26 +106,58 @@ def layer_rate(
 ) -> float:
     """Im kappa_1 (1/m) of the module docstring for the column c_of_h (heights above the plane, m -> m/s)
     at one frequency (Hz); 0 where c does not decrease over the creeping layer (no decay)."""
+    return float(layer_rates(c_of_h, [frequency_hz], flow_resistivity)[0])
+
+
+def layer_rates(
+    c_of_h: Callable[[np.ndarray], np.ndarray], frequencies_hz: ArrayLike, flow_resistivity: float | None
+) -> np.ndarray:
+    """:func:`layer_rate` at several frequencies (Hz, (F,)) of one column -> (F,) 1/m.
+
+    Each band's fixed point of the layer height delta is iterated as in the module docstring (a from the
+    drop c(0) - c(delta), delta = |zeta_1| / l, at most LAYER_ITERATIONS steps, stop at 1e-6 relative);
+    the bands advance in lockstep, so each step asks ``c_of_h`` once for the heights of the bands still
+    iterating instead of once per band (the column's sound speed dominated the consultant example's
+    diffraction stage: ~47 us a call, mostly numpy overhead). The arithmetic per band is the scalar one,
+    unchanged, so the rates equal one band at a time wherever c_of_h is pointwise (each height's speed
+    independent of the others in the call; tests/shadows/test_leg_shadow.py)."""
+    freqs = [float(f) for f in np.atleast_1d(np.asarray(frequencies_hz, float))]
     c0 = float(np.asarray(c_of_h(np.array([0.0])), float)[0])
-    k0 = 2.0 * math.pi * frequency_hz / c0
-    table = _root_table(float(frequency_hz), flow_resistivity)
-    delta, a = 1.0, math.nan
+    k0 = [2.0 * math.pi * f / c0 for f in freqs]
+    tables = [_root_table(f, flow_resistivity) for f in freqs]
+    delta = [1.0] * len(freqs)
+    a = [math.nan] * len(freqs)
+    flat = [False] * len(freqs)  # c does not decrease over the layer: no decay
+    live = list(range(len(freqs)))  # bands still iterating
     for _ in range(LAYER_ITERATIONS):
-        drop = c0 - float(np.asarray(c_of_h(np.array([delta])), float)[0])
-        if not drop > 0.0:
-            return 0.0
-        a = 2.0 * drop / (c0 * delta)
-        ell = (k0 * k0 * a) ** (1.0 / 3.0)
-        if table is None:
-            w = _rigid_root()
-        else:
-            v = table(math.log(min(max((k0 / a) ** (1.0 / 3.0), _U_MIN), _U_MAX)))
-            w = complex(v[0], v[1])
-        new = abs(w) / ell  # |zeta_1| = |w|
-        if abs(new - delta) <= 1e-6 * delta:
+        if not live:
             break
-        delta = min(new, H_MAX_M)
-    return float(creeping_rate(frequency_hz, np.array([a]), np.array([c0]), flow_resistivity)[0])
+        c_d = np.asarray(c_of_h(np.array([delta[i] for i in live])), float)
+        still = []
+        for i, c_i in zip(live, c_d, strict=True):
+            drop = c0 - float(c_i)
+            if not drop > 0.0:
+                flat[i] = True
+                continue
+            a[i] = 2.0 * drop / (c0 * delta[i])
+            ell = (k0[i] * k0[i] * a[i]) ** (1.0 / 3.0)
+            table = tables[i]
+            if table is None:
+                w = _rigid_root()
+            else:
+                v = table(math.log(min(max((k0[i] / a[i]) ** (1.0 / 3.0), _U_MIN), _U_MAX)))
+                w = complex(v[0], v[1])
+            new = abs(w) / ell  # |zeta_1| = |w|
+            if abs(new - delta[i]) <= 1e-6 * delta[i]:
+                continue  # converged: a[i] is final
+            delta[i] = min(new, H_MAX_M)
+            still.append(i)
+        live = still
+    out = np.zeros(len(freqs))
+    for i, f in enumerate(freqs):
+        if not flat[i]:
+            out[i] = float(creeping_rate(f, np.array([a[i]]), np.array([c0]), flow_resistivity)[0])
+    return out
 
 
 class _Column:
@@ -135,11 +168,13 @@ class _Column:
         self.ray: LimitingRay = limiting_ray(c_of_h, H_MAX_M, RAY_INTERVALS)
         self.rates: dict[tuple[float, float | None], float] = {}
 
-    def rate(self, f: float, flow_resistivity: float | None) -> float:
-        key = (f, flow_resistivity)
-        if key not in self.rates:
-            self.rates[key] = layer_rate(self.c_of_h, f, flow_resistivity)
-        return self.rates[key]
+    def rates_at(self, f_hz: np.ndarray, flow_resistivity: float | None) -> list[float]:
+        """The creeping rates (1/m) at the bands f_hz (Hz), the missing ones computed together."""
+        missing = [float(f) for f in f_hz if (float(f), flow_resistivity) not in self.rates]
+        if missing:
+            for f, r in zip(missing, layer_rates(self.c_of_h, missing, flow_resistivity), strict=True):
+                self.rates[(f, flow_resistivity)] = float(r)
+        return [self.rates[(float(f), flow_resistivity)] for f in f_hz]
 
 
 _KEY_HEIGHTS = np.array([0.0, 0.25, 0.5, 1.0, 2.0, 4.0, 8.0, 16.0, 32.0, 64.0, 128.0, 256.0])
@@ -246,8 +281,8 @@ def leg_shadow(
                 col = _column(c_eff, *first, math.radians(k[0] * AZ_STEP_DEG) if azimuthal else 0.0)
                 cache[k] = col
             span[sel] += w[sel] * (col.ray.x_of_h(ha[sel]) + col.ray.x_of_h(hb[sel]))
-            for fi, f in enumerate(f_hz):
-                rate[fi, sel] += w[sel] * col.rate(float(f), flow_resistivity)
+            for fi, r in enumerate(col.rates_at(f_hz, flow_resistivity)):
+                rate[fi, sel] += w[sel] * r
     dd = h[idx] - span[idx]
     d[idx] = np.where(np.isfinite(dd), dd, -np.inf)
     dark = d > 0.0

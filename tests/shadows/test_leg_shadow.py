@@ -35,12 +35,13 @@ import pytest
 from bentray.engine.acoustics.creeping import creeping_modes
 from bentray.engine.acoustics.ground import delany_bazley_impedance
 from bentray.engine.acoustics.refractive_shadow import refractive_shadow_energy
-from bentray.engine.diffraction.leg_shadow import creeping_rate, layer_rate, leg_shadow
+from bentray.engine.diffraction.leg_shadow import LAYER_ITERATIONS, creeping_rate, layer_rate, layer_rates, leg_shadow
 from bentray.engine.diffraction.legs import ProfileLegs, circular_legs, fit_linear_c
 from bentray.engine.diffraction.paths import GroundSide, edge_paths
 from bentray.engine.diffraction.wedge import Edge
 from bentray.engine.profiles import Log
 from tests.reference.gfpe import gfpe_pressure
+from tests.reference.layer_rate_scalar import layer_rate_scalar
 
 GRASS = 2e5
 H, XB, ZS, ZR = 4.0, 20.0, 2.0, 1.5
@@ -91,6 +92,43 @@ def test_rate_against_wavenumber_integral(f: float) -> None:
     got = 20 * np.log10(np.e) * layer_rate(lambda h: 340.0 - np.log1p(np.asarray(h, float)), f, GRASS)
     print(f"{f:g} Hz: wavenumber integral {ref:.3f} dB/m, leg {got:.3f} dB/m")
     assert ref <= got <= 1.6 * ref
+
+
+_COLUMNS = {
+    "log decrease": lambda h: 340.0 - np.log1p(h),
+    "linear decrease": lambda h: 343.0 - 0.1 * h,
+    "steep then flat": lambda h: 340.0 - 3.0 * np.tanh(h / 2.0),
+    "constant up to 0.5 m": lambda h: 340.0 - np.maximum(h - 0.5, 0.0) * 0.05,
+    "increase (no decay)": lambda h: 340.0 + np.log1p(h),
+    "tiny gradient (slow fixed point)": lambda h: 340.0 - 1e-9 * h,
+}
+
+
+@pytest.mark.parametrize("column", list(_COLUMNS))
+@pytest.mark.parametrize("sigma", [GRASS, 2e6, None], ids=["grass", "hard", "rigid"])
+def test_layer_rates_equal_one_band_at_a_time(column: str, sigma: float | None) -> None:
+    """Lockstep bands (one c_of_h call per step for all bands) give the scalar reference's rates bit for bit,
+    in fewer calls."""
+    bands = [63.0, 125.0, 250.0, 500.0, 1000.0, 2000.0, 4000.0, 8000.0]
+    calls = {"lockstep": 0, "scalar": 0}
+
+    def counted(kind: str):
+        def c_of_h(h: np.ndarray) -> np.ndarray:
+            calls[kind] += 1
+            return _COLUMNS[column](np.asarray(h, float))
+
+        return c_of_h
+
+    got = layer_rates(counted("lockstep"), bands, sigma)
+    want = np.array([layer_rate_scalar(counted("scalar"), f, sigma) for f in bands])
+    np.testing.assert_array_equal(got, want)
+    assert calls["lockstep"] <= 1 + LAYER_ITERATIONS
+    if column != "increase (no decay)":
+        assert np.all(want > 0.0)
+        assert calls["lockstep"] < calls["scalar"] / 2  # the point of the lockstep
+    else:
+        assert np.all(want == 0.0)
+    assert layer_rate(counted("lockstep"), 500.0, sigma) == want[3]
 
 
 @cache
