@@ -111,6 +111,9 @@ EIGENRAY_PROBES_PER_REFLECTION = 200
 DEFAULT_MESH_SECONDS = 600.0  # default budget of one job's mesh build (BENTRAY_MAX_MESH_SECONDS)
 # The refractive-shadow stage's wavenumber integral: measured 6.3e-8 s per cell (1 kHz, 1 km, 3.5e8 cells in
 # 21.8 s on a loaded core, 2026-12-02); rounded up.
+# Since 2026-12-05 each Numerov row is one compiled pass (engine/acoustics/numerov_kernel.py): 1.8 ns per cell on a
+# quiet core. The rates here are kept: the 'auto' limits and the budgets below were chosen with them, and lowering
+# them would change which bands and bins 'auto' runs (a product decision, not a speed-up).
 SHADOW_SECONDS_PER_CELL = 1e-7
 SHADOW_AUTO_MAX_SOLVES = 16  # engine/shadow_stage.py's 'auto' limits: integrals ...
 SHADOW_AUTO_MAX_SECONDS = 600.0  # ... and estimated seconds (shadow_cost)
