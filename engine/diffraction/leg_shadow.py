@@ -166,6 +166,8 @@ class _Column:
     def __init__(self, c_of_h: Callable[[np.ndarray], np.ndarray]) -> None:
         self.c_of_h = c_of_h
         self.ray: LimitingRay = limiting_ray(c_of_h, H_MAX_M, RAY_INTERVALS)
+        # no height above the plane is reached by the grazing ray (c rises at once: downward refraction)
+        self.never_grazes = not bool(np.any(np.isfinite(self.ray.x[1:])))
         self.rates: dict[tuple[float, float | None], float] = {}
 
     def rates_at(self, f_hz: np.ndarray, flow_resistivity: float | None) -> list[float]:
@@ -281,6 +283,8 @@ def leg_shadow(
                 col = _column(c_eff, *first, math.radians(k[0] * AZ_STEP_DEG) if azimuthal else 0.0)
                 cache[k] = col
             span[sel] += w[sel] * (col.ray.x_of_h(ha[sel]) + col.ray.x_of_h(hb[sel]))
+            if col.never_grazes:  # span nan, d = -inf: these legs are lit, their rates never read
+                continue
             for fi, r in enumerate(col.rates_at(f_hz, flow_resistivity)):
                 rate[fi, sel] += w[sel] * r
     dd = h[idx] - span[idx]

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from scipy.special import ai_zeros
 
+from bentray.engine.acoustics import creeping
 from bentray.engine.acoustics.creeping import (
     creeping_modes,
     creeping_pressure,
@@ -80,6 +81,42 @@ def test_limiting_ray_matches_the_closed_forms():
     np.testing.assert_allclose(fit_linear_k2(lin_k2, ZS, h), A, rtol=1e-6)
     assert lin_c.upward and lin_k2.upward
     assert not limiting_ray(lambda z: 340.0 + np.log(np.asarray(z, float) + 1.0), 100.0, 64).upward
+
+
+_NO_GRAZE = {
+    "log b = +1": lambda z: 340.0 + np.log1p(np.asarray(z, float)),
+    "homogeneous": lambda z: np.full(np.shape(z), 340.0),
+    "linear increase": lambda z: 340.0 + 0.05 * np.asarray(z, float),
+    "decrease then increase above 5 m": lambda z: 340.0 + 0.01 * (np.asarray(z, float) - 5.0) ** 2 - 0.25,
+}
+
+
+@pytest.mark.parametrize("profile", list(_NO_GRAZE))
+def test_limiting_ray_without_a_grazing_ray_is_the_full_table(profile):
+    """Where c does not drop below its ground value just above the ground, limiting_ray stops after the first
+    interval's nodes; oracle: the full quadrature over every node (_ray_span), which it must equal (x = 0 at
+    the ground, nan above: the ray turns back at once). The last profile drops first, so it gets the full
+    table (a grazing ray up to ~10 m), checked against the same oracle."""
+    c_of_h = _NO_GRAZE[profile]
+    calls = []
+
+    def counted(h):
+        calls.append(np.size(h))
+        return c_of_h(h)
+
+    ray = limiting_ray(counted, 400.0, 512)
+    edges = np.linspace(0.0, np.sqrt(400.0 - ray.h_g), 513)
+    mid, half = 0.5 * (edges[1:] + edges[:-1]), 0.5 * np.diff(edges)
+    u = (mid[:, None] + half[:, None] * creeping._GL_X[None, :]).ravel()
+    full = creeping._ray_span(c_of_h(ray.h_g + u * u), u, half, ray.c_ground)
+    np.testing.assert_array_equal(ray.x, full)
+    np.testing.assert_array_equal(ray.h, ray.h_g + edges * edges)
+    if profile.startswith("decrease"):
+        assert ray.h_g == 0.0 and np.isfinite(ray.x[1]) and not ray.upward
+        assert max(calls) == u.size
+    else:
+        assert ray.x[0] == 0.0 and np.all(np.isnan(ray.x[1:])) and not ray.upward
+        assert max(calls) == 401 and sum(calls) == 401 + 8  # the probes, then the first interval's 8 nodes
 
 
 @pytest.mark.parametrize("f", [100.0, pytest.param(500.0, marks=pytest.mark.slow)])

@@ -187,6 +187,12 @@ def test_downward_and_homogeneous_unchanged(b: float) -> None:
     new = edge_paths(EDGE, SRC, RECS, f, 340.0, GROUND, GROUND, ProfileLegs(_c_eff(b)), geometric=True)
     old = edge_paths(EDGE, SRC, RECS, f, 340.0, GROUND, GROUND, _plain_legs(b), geometric=True)
     np.testing.assert_array_equal(new, old)
+    # no column grazes: every leg lit, and no creeping rate is computed for them (the rates would go unread)
+    columns: dict = {}
+    d, amp = leg_shadow(_c_eff(b), np.broadcast_to(EDGE.point, RECS.shape), RECS, np.zeros(len(XS)), f, GRASS,
+                        columns=columns)  # fmt: skip
+    assert amp is None and np.all(d == -np.inf)
+    assert columns and all(col.never_grazes and not col.rates for col in columns.values())
 
 
 def test_per_point_ground_heights() -> None:
