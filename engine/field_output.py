@@ -18,7 +18,7 @@ import contextlib
 import math
 import numbers
 import os
-import tempfile
+import secrets
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -45,12 +45,21 @@ PREVIEW_TOP_PERCENTILE = 99.5
 
 @contextlib.contextmanager
 def _atomic_path(path: str | Path, suffix: str) -> Iterator[Path]:
-    """Yield a temporary path in ``path``'s folder (same suffix, so writers pick the format); replace on success."""
+    """Yield a temporary path in ``path``'s folder (same suffix, so writers pick the format); replace on success.
+
+    The temporary file is created with mode 0o666 less the umask, as ``open`` would create ``path`` itself
+    (``tempfile.mkstemp``'s 0o600 made field.vti and preview.png unreadable to the group beside a 0o644
+    report.json: a web server or a colleague reading the results folder could not open them)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=f".tmp{suffix}", dir=path.parent)
-    os.close(fd)
-    tmp = Path(tmp_name)
+    while True:
+        tmp = path.parent / f".{path.stem}.{secrets.token_hex(8)}.tmp{suffix}"
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:  # another writer's name (1 in 2^64): draw again
+            continue
+        os.close(fd)
+        break
     try:
         yield tmp
         os.replace(tmp, path)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import stat
 import sys
 from pathlib import Path
 
@@ -79,6 +81,26 @@ def test_vti_failed_write_leaves_previous_file(tmp_path: Path) -> None:
         write_field_vti(path, ORIGIN, SPACING, (4, 3, 0), {"a": np.zeros((4, 3, 0))})
     assert path.read_bytes() == before
     assert sorted(p.name for p in tmp_path.iterdir()) == ["f.vti"]
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o077, 0o002])
+def test_files_get_the_modes_open_would_give(tmp_path: Path, umask: int) -> None:
+    """field.vti and preview.png are written through a temporary file: it must get 0o666 less the umask, as
+    a file opened directly (report.json) does, not mkstemp's 0o600."""
+    old = os.umask(umask)
+    try:
+        vti = write_field_vti(tmp_path / "f.vti", ORIGIN, SPACING, SHAPE, {"a": _asymmetric()})
+        png = write_preview_png(tmp_path / "p.png", ORIGIN, SPACING, SHAPE, _asymmetric(), source_xyz=ORIGIN,
+                                receiver_z=0.5)  # fmt: skip
+        with (tmp_path / "plain.json").open("w") as fh:
+            fh.write("{}")
+    finally:
+        os.umask(old)
+    want = 0o666 & ~umask
+    assert stat.S_IMODE((tmp_path / "plain.json").stat().st_mode) == want
+    assert stat.S_IMODE(vti.stat().st_mode) == want
+    assert stat.S_IMODE(png.stat().st_mode) == want
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["f.vti", "p.png", "plain.json"]  # no temporary left
 
 
 def test_nearest_index() -> None:
