@@ -1,6 +1,6 @@
 """The compiled Numerov row of the wavenumber integral (engine/acoustics/numerov_kernel.py).
 
-Oracle: the numpy expression the integral used before (``numerov_row_numpy``, kept beside the kernel), row by
+Oracle: the numpy expression the integral used before (tests/reference/numerov_numpy.py), row by
 row and through whole integrals (``ffp_field(..., row_step=numerov_row_numpy)``). Only the rounding may
 differ (the kernel divides through the conjugate, numpy by Smith's algorithm), so:
 
@@ -20,8 +20,9 @@ import numpy as np
 import pytest
 
 from bentray.engine.acoustics.ground import delany_bazley_impedance
-from bentray.engine.acoustics.numerov_kernel import numerov_row, numerov_row_numpy
+from bentray.engine.acoustics.numerov_kernel import numerov_row
 from bentray.engine.acoustics.wavenumber import ffp_field
+from tests.reference.numerov_numpy import numerov_row_numpy
 
 
 def _row_inputs(n: int, seed: int):
