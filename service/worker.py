@@ -143,12 +143,14 @@ def run_attempt(
             last_time[0], last_stage[0] = now, stage
             store.set_progress(job_id, attempt, stage, 0.98 * fraction)  # the last 2 %: writing files
 
+    preview = None  # preview.png's drawing process (engine/preview_process.py), for jobs with a field
     try:
         import inspect
 
         import numba
 
         from bentray.engine.executors import make_executor
+        from bentray.engine.preview_process import PreviewWorker
         from bentray.engine.run import run_job
         from bentray.engine.writers import write_outcome
         from bentray.scenes.schema import parse_job_text
@@ -156,13 +158,15 @@ def run_attempt(
         available = int(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
         numba.set_num_threads(max(1, min(threads, available)))
         job = parse_job_text(record.job_json, origin=f"job {job_id}")
+        if "field" in job.outputs:  # it loads matplotlib while the job runs (it inherits the nice level)
+            preview = PreviewWorker.start()
         kwargs: dict[str, Any] = {"executor": make_executor(dask_scheduler)}
         if "progress" in inspect.signature(run_job).parameters:
             kwargs["progress"] = progress
         outcome = run_job(job, Path(inputs), **kwargs)
         store.set_progress(job_id, attempt, "writing", 0.98)
         remove_staging(Path(results).parent)  # an earlier attempt killed while writing
-        written = write_outcome(outcome, list(job.outputs), Path(results))
+        written = write_outcome(outcome, list(job.outputs), Path(results), preview_worker=preview)
         store.finish(
             job_id,
             attempt,
@@ -174,6 +178,8 @@ def run_attempt(
         log.debug("job %s failed:\n%s", job_id, traceback.format_exc())
         store.finish(job_id, attempt, JobStatus.FAILED, error=_error_text(exc))
     finally:
+        if preview is not None:  # a job that failed or was cancelled before its outputs: stop the child
+            preview.close()
         remove_staging(Path(results).parent)
         store.close()
 

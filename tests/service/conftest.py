@@ -36,6 +36,18 @@ def tiny_job(rays: int = 31, name: str = "tiny", batch_rays: int | None = None) 
     return job
 
 
+def tiny_field_job(name: str = "tiny-field") -> dict:
+    """:func:`tiny_job` with a small level map (a vertical x-z section, 250 Hz and 1 kHz, 100 dB): field.vti
+    and preview.png."""
+    job = tiny_job(31, name)
+    job["rays"]["azimuth_deg"] = {"min": -2.0, "max": 2.0, "count": 3}
+    job["sources"][0]["power_db"] = {"250": 100.0, "1000": 100.0}
+    job["field"] = {"origin": [20.0, 0.0, 1.0], "spacing": [40.0, 1.0, 5.0], "shape": [12, 1, 6],
+                    "frequencies_hz": [250.0, 1000.0]}  # fmt: skip
+    job["outputs"] = ["field", "report"]
+    return job
+
+
 class ServerProcess:
     """``python -m bentray.service serve`` on a free port with a given data folder and environment."""
 
@@ -128,3 +140,4 @@ def warm_kernels() -> None:
     from bentray.scenes.schema import Job
 
     run_job(Job.model_validate(tiny_job(5)), None)
+    run_job(Job.model_validate(tiny_field_job()), None)

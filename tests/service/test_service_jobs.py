@@ -16,7 +16,7 @@ from bentray.engine.run import run_job
 from bentray.engine.writers import write_outcome
 from bentray.scenes.schema import parse_job_text
 from bentray.service.store import JobStore
-from tests.service.conftest import ServerProcess, finished, tiny_job, wait_for
+from tests.service.conftest import ServerProcess, finished, tiny_field_job, tiny_job, wait_for
 
 # report.json keys that measure this run (seconds, rates, threads) rather than describe its result
 VOLATILE_REPORT_KEYS = {
@@ -103,6 +103,40 @@ def test_full_job_cycle_matches_local_run(server, tmp_path):
         assert http.delete(f"/v1/jobs/{job_id}").status_code == 204
         assert http.get(f"/v1/jobs/{job_id}").status_code == 404
         assert not (server.data_dir / "jobs" / job_id).exists()
+
+
+def test_field_job_results_match_local_run(server, tmp_path):
+    """A job with a field: the job process draws preview.png in its own child (engine/preview_process.py);
+    field.vti and preview.png are byte for byte the local run's (drawn in-process), and no preview process
+    outlives the job."""
+    job = tiny_field_job("field-cycle")
+    text = json.dumps(job)
+    local = tmp_path / "local"
+    write_outcome(run_job(parse_job_text(text), tmp_path), job["outputs"], local)
+    with server.client() as http:
+        r = http.post("/v1/jobs", content=text, headers={"Content-Type": "application/json"})
+        assert r.status_code == 202, r.text
+        info = wait_for(http, r.json()["id"], finished)
+        assert info["status"] == "succeeded", info
+        assert sorted(info["results"]) == ["field.vti", "preview.png", "report.json"]
+        for name in ("field.vti", "preview.png"):
+            got = http.get(info["links"][name])
+            assert got.status_code == 200 and got.content == (local / name).read_bytes(), name
+    children = [line for line in _process_table() if "bentray.engine.preview_process" in line]
+    assert children == [], children
+    assert "drawn in this process" not in server.log.read_text()  # the child drew it (no fallback warning)
+
+
+def _process_table() -> list[str]:
+    """Command lines of the processes this user can see (Linux /proc)."""
+    out = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                out.append((d / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace"))
+            except OSError:
+                continue
+    return out
 
 
 def test_cli_submit_wait_out_status_fetch(server, tmp_path, capsys):
