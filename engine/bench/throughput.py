@@ -12,8 +12,10 @@ Kernels (tracer.trace): ``generic`` (traverse.trace_rays, what every trace with 
 paraxial state runs) and ``lean`` (kernels/lean.py, the plain parabolic trace on packed cell records;
 bit-identical final states) with one ray in flight and no prefetch (``lean 1 lane``), and with
 tracer.LEAN_LANES rays in flight and each next record prefetched (the default for meshes larger than
-tracer.LEAN_CACHED_BYTES of records). With 1 numba thread and with
-all of them (restored afterwards).
+tracer.LEAN_CACHED_BYTES of records). ``generic + wind``: the generic kernel with a wind (the ridge wind of
+the built-in ridge scene over the desert, a log-law wind over the slabs): the wind's cost per crossing is its
+time less the generic kernel's, in the same run. With 1 numba thread and with all of them (restored
+afterwards).
 Timing: ``rounds`` interleaved rounds (every kernel once per round, in turn, so that a change in the
 machine's load hits all alike), each the best of ``repeats`` warm runs; a kernel's time is its best over
 rounds; the ratios compare times of the same run. The load average is printed beside the numbers.
@@ -42,7 +44,7 @@ from bentray.engine.compile_time import compile_timer
 from bentray.engine.result import TraceResult
 from bentray.engine.tracer import LEAN_LANES, trace, trace_lean
 
-__all__ = ["run", "measure_kernels", "KERNELS"]
+__all__ = ["run", "measure_kernels", "scene_wind", "KERNELS", "WIND_KERNEL"]
 
 COLUMNS = [
     "scene",
@@ -66,8 +68,22 @@ COLUMNS = [
 ]
 MACHINE_COLUMNS = ["quantity", "value", "unit"]
 LEAN_DEFAULT = f"lean {LEAN_LANES} lanes"
-KERNELS = ("generic", "lean 1 lane", LEAN_DEFAULT)
+WIND_KERNEL = "generic + wind"
+KERNELS = ("generic", "lean 1 lane", LEAN_DEFAULT, WIND_KERNEL)
+ISSUE_WIND_NS = 286.0  # the wind's cost per crossing (generic kernel, desert) when issue 18 was filed
 PAPER_NS = 122.0  # the paper's Desert(m): 219 ms for 10K rays x 179 cells on one 3.2 GHz core (2016)
+
+
+def scene_wind(scene: str) -> Any:
+    """The wind of the ``generic + wind`` row (kernel form): the built-in ridge scene's over the desert, a
+    log-law wind (u* 0.4 m/s, z_g 0.1 m, blowing 30 degrees from x) over the slabs."""
+    from bentray.engine.wind import wind_spec
+
+    if scene == "desert":
+        from bentray.scenes.library.ridge import RIDGE_WIND
+
+        return wind_spec("ridge", RIDGE_WIND)
+    return wind_spec("log", {"u_star": 0.4, "z_g": 0.1, "direction_deg": 30.0})
 
 
 def _runner(sc: SceneMesh, kernel: str) -> Callable[[], TraceResult]:
@@ -75,6 +91,9 @@ def _runner(sc: SceneMesh, kernel: str) -> Callable[[], TraceResult]:
     args = (sc.mesh, 340.0, sc.origins, sc.directions, sc.start_cells)
     if kernel == "generic":
         return lambda: trace(sc.mesh, "parabolic", 340.0, *args[2:], kernel="generic", **kw)
+    if kernel == WIND_KERNEL:
+        wind = scene_wind(sc.name)
+        return lambda: trace(sc.mesh, "parabolic", 340.0, *args[2:], kernel="generic", wind=wind, **kw)
     if kernel == "lean 1 lane":
         return lambda: trace_lean(*args, prefetch=0, lanes=1, **kw)
     return lambda: trace_lean(*args, prefetch=1, lanes=LEAN_LANES, **kw)
@@ -166,7 +185,7 @@ def run(quick: bool, scene_cache: dict[str, Any] | None = None) -> Section:
                     crossings_per_s_per_core=crossings / elapsed / threads,
                     ns_per_crossing_per_core=ns,
                     speedup_vs_generic=t_generic / elapsed,
-                    x_memory_bound=ns / b["memory_ns" if kernel == "generic" else "packed_memory_ns"],
+                    x_memory_bound=ns / b["memory_ns" if kernel.startswith("generic") else "packed_memory_ns"],
                     x_arithmetic_bound=ns / b["arithmetic_ns"],
                     rays_per_s=n / elapsed,
                     compile_s=compiled[kernel],
@@ -213,8 +232,17 @@ def run(quick: bool, scene_cache: dict[str, Any] | None = None) -> Section:
             f"best lean = {lean['x_memory_bound']:.1f}x the memory bound, {lean['x_arithmetic_bound']:.1f}x the "
             f"arithmetic bound; paper {PAPER_NS:.0f} ns / best lean = "
             f"{PAPER_NS / lean['ns_per_crossing_per_core']:.2f}x; "
-            f"{np.mean([r['crossings_per_ray'] for r in rows.values()]):.0f} cells per ray.**"
+            f"{np.mean([r['crossings_per_ray'] for r in rows.values() if r['kernel'] != WIND_KERNEL]):.0f} "
+            "cells per ray.**"
         )
+        windy = rows.get(WIND_KERNEL)
+        if windy is not None:
+            extra = windy["ns_per_crossing_per_core"] - gen["ns_per_crossing_per_core"]
+            sec.text.append(
+                f"{scene}, one core, generic kernel with {'the ridge' if scene == 'desert' else 'a log-law'} wind: "
+                f"{windy['ns_per_crossing_per_core']:.0f} ns per crossing, the wind {extra:.0f} ns of it"
+                + (f" ({ISSUE_WIND_NS:.0f} ns when issue 18 was filed)." if scene == "desert" else ".")
+            )
     sec.tables.append(table)
     sec.tables.append(_machine_table(costs, bounds))
     return sec

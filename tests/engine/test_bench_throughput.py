@@ -46,14 +46,23 @@ def test_bounds_scale_with_the_measured_costs() -> None:
 
 
 def test_interleaved_kernel_timing_returns_every_kernel_with_equal_results() -> None:
+    """Every kernel of still air reaches the same final states; the wind row really traced with the wind (its
+    states differ, and equal a separate generic trace with that wind)."""
     from bentray.engine.bench.breakdown import _stratified_scene
-    from bentray.engine.bench.throughput import KERNELS, measure_kernels
+    from bentray.engine.bench.throughput import KERNELS, WIND_KERNEL, measure_kernels, scene_wind
+    from bentray.engine.tracer import trace
 
     sc = _stratified_scene(60)
     compiled: dict[str, float] = {}
     timed = measure_kernels(sc, 1, rounds=2, repeats=1, compiled=compiled)
     assert list(timed) == list(KERNELS) and set(compiled) == set(KERNELS)
     first = timed["generic"][1]
-    for elapsed, res in timed.values():
+    for kernel, (elapsed, res) in timed.items():
         assert elapsed > 0.0
-        assert np.array_equal(res.position, first.position) and np.array_equal(res.crossings, first.crossings)
+        if kernel != WIND_KERNEL:
+            assert np.array_equal(res.position, first.position) and np.array_equal(res.crossings, first.crossings)
+    windy = timed[WIND_KERNEL][1]
+    assert not np.array_equal(windy.position, first.position)
+    ref = trace(sc.mesh, "parabolic", 340.0, sc.origins, sc.directions, sc.start_cells, kernel="generic",
+                wind=scene_wind(sc.name), max_time_s=10.0, max_reflections=3)  # fmt: skip
+    assert np.array_equal(windy.position, ref.position)
