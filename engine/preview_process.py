@@ -144,7 +144,8 @@ def main() -> int:
             png_path, args, kwargs = pickle.load(fh)
         write_preview_png(png_path, *args, **kwargs)
     except Exception as exc:  # reported to the parent, which draws again in-process and raises there
-        sys.stdout.write(f"error {type(exc).__name__}: {exc}\n")
+        message = " ".join(str(exc).split())[:1000]  # one short line: it must fit the pipe (see wait)
+        sys.stdout.write(f"error {type(exc).__name__}: {message}\n")
         return 1
     sys.stdout.write("ok\n")
     return 0

@@ -166,8 +166,10 @@ class _Column:
     def __init__(self, c_of_h: Callable[[np.ndarray], np.ndarray]) -> None:
         self.c_of_h = c_of_h
         self.ray: LimitingRay = limiting_ray(c_of_h, H_MAX_M, RAY_INTERVALS)
-        # no height above the plane is reached by the grazing ray (c rises at once: downward refraction)
-        self.never_grazes = not bool(np.any(np.isfinite(self.ray.x[1:])))
+        # no height above the plane is reached by the grazing ray (c rises at once: downward refraction). With
+        # h_g = 0, X is then nan above the plane, so every leg of the column (one end above it) is lit; with
+        # h_g > 0 a leg below h_g has X = 0 and a finite span, so its rate would be read
+        self.never_grazes = self.ray.h_g == 0.0 and not bool(np.any(np.isfinite(self.ray.x[1:])))
         self.rates: dict[tuple[float, float | None], float] = {}
 
     def rates_at(self, f_hz: np.ndarray, flow_resistivity: float | None) -> list[float]:
