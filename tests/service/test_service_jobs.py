@@ -28,6 +28,7 @@ VOLATILE_REPORT_KEYS = {
     "mesh_build_time_s",
     "machine",
 }
+JSON = {"Content-Type": "application/json"}
 VOLATILE_STAGES = {"trace"}  # "... on local process, N numba threads"
 
 
@@ -65,11 +66,16 @@ def server(tmp_path_factory, warm_kernels):
     srv.stop()
 
 
-def test_full_job_cycle_matches_local_run(server, tmp_path):
-    job = tiny_job(31, name="cycle")
+def _local_run(job: dict, tmp_path: Path) -> tuple[str, Path]:
+    """(the job's JSON text, the folder of its outputs written by a local run here)."""
     text = json.dumps(job)
     local = tmp_path / "local"
     write_outcome(run_job(parse_job_text(text), tmp_path), job["outputs"], local)
+    return text, local
+
+
+def test_full_job_cycle_matches_local_run(server, tmp_path):
+    text, local = _local_run(tiny_job(31, name="cycle"), tmp_path)
 
     with server.client() as http:
         r = http.post("/v1/jobs", content=text, headers={"Content-Type": "application/json"})
@@ -109,14 +115,9 @@ def test_field_job_results_match_local_run(server, tmp_path):
     """A job with a field: the job process draws preview.png in its own child (engine/preview_process.py);
     field.vti and preview.png are byte for byte the local run's (drawn in-process), and no preview process
     outlives the job."""
-    job = tiny_field_job("field-cycle")
-    text = json.dumps(job)
-    local = tmp_path / "local"
-    write_outcome(run_job(parse_job_text(text), tmp_path), job["outputs"], local)
+    text, local = _local_run(tiny_field_job("field-cycle"), tmp_path)
     with server.client() as http:
-        r = http.post("/v1/jobs", content=text, headers={"Content-Type": "application/json"})
-        assert r.status_code == 202, r.text
-        info = wait_for(http, r.json()["id"], finished)
+        info = wait_for(http, http.post("/v1/jobs", content=text, headers=JSON).json()["id"], finished)
         assert info["status"] == "succeeded", info
         assert sorted(info["results"]) == ["field.vti", "preview.png", "report.json"]
         for name in ("field.vti", "preview.png"):
