@@ -263,8 +263,8 @@ def leg_shadow(
         zkey = z0
         xy = np.where((ha <= hb)[:, None], a_pts[:, :2], b_pts[:, :2])
     span = np.zeros(n)
-    rate = np.zeros((f_hz.size, n))
     idx = np.nonzero(ok)[0]
+    pending = []  # (column, its legs, their bin weights): rates are taken once the dark legs are known
     cache = columns if columns is not None else {}
     for b, w in bins:
         keys = np.column_stack([b, zkey, xy])[idx]
@@ -285,15 +285,20 @@ def leg_shadow(
                 col = _column(c_eff, *first, math.radians(k[0] * AZ_STEP_DEG) if azimuthal else 0.0)
                 cache[k] = col
             span[sel] += w[sel] * (col.ray.x_of_h(ha[sel]) + col.ray.x_of_h(hb[sel]))
-            if col.never_grazes:  # span nan, d = -inf: these legs are lit, their rates never read
-                continue
-            for fi, r in enumerate(col.rates_at(f_hz, flow_resistivity)):
-                rate[fi, sel] += w[sel] * r
+            pending.append((col, sel, w[sel]))
     dd = h[idx] - span[idx]
     d[idx] = np.where(np.isfinite(dd), dd, -np.inf)
     dark = d > 0.0
     if not np.any(dark):
         return d, None
+    # the creeping rates only where a leg is dark (a lit leg's rate is never read), accumulated over the
+    # columns in the same order as the spans, so a dark leg's rate is the sum it always was
+    rate = np.zeros((f_hz.size, n))
+    for col, sel, w_sel in pending:
+        if col.never_grazes or not np.any(dark[sel]):  # never_grazes: span nan, every leg lit
+            continue
+        for fi, r in enumerate(col.rates_at(f_hz, flow_resistivity)):
+            rate[fi, sel] += w_sel * r
     amp = np.ones((f_hz.size, n))
     amp[:, dark] = np.exp(-rate[:, dark] * d[dark][None, :])
     return d, amp
