@@ -256,14 +256,7 @@ def limiting_ray(c_of_h: SoundSpeedOfHeight, h_max: float, n_intervals: int = 25
     flat = np.flatnonzero(cp < c_ground * (1.0 - 1e-12))
     h_g = 0.0
     if flat.size and flat[0] > 1:  # c stays at its ground value up to some height: bisect for its top
-        lo, hi = float(probe[flat[0] - 1]), float(probe[flat[0]])
-        for _ in range(60):
-            half_way = 0.5 * (lo + hi)
-            if float(np.asarray(c_of_h(np.array([half_way])), float)[0]) < c_ground * (1.0 - 1e-12):
-                hi = half_way
-            else:
-                lo = half_way
-        h_g = lo
+        h_g = _bisect_top(c_of_h, float(probe[flat[0] - 1]), float(probe[flat[0]]), c_ground * (1.0 - 1e-12))
     upward = flat.size > 0 and bool(np.all(cp[flat[0] :] < c_ground * (1.0 - 1e-12)))
     u_max = math.sqrt(max(h_max - h_g, 0.0))
     edges = np.linspace(0.0, u_max, n_intervals + 1)
@@ -280,6 +273,46 @@ def limiting_ray(c_of_h: SoundSpeedOfHeight, h_max: float, n_intervals: int = 25
             return LimitingRay(h=h_g + edges * edges, x=x, h_g=h_g, c_ground=c_ground, upward=False)
     x = _ray_span(np.asarray(c_of_h(h_g + u * u), float), u, half, c_ground)
     return LimitingRay(h=h_g + edges * edges, x=x, h_g=h_g, c_ground=c_ground, upward=bool(upward))
+
+
+_BISECT_STEPS = 60  # halvings of the bracket of the flat layer's top (past double precision's 52)
+_BISECT_LEVELS = 6  # halvings decided per call of c_of_h (63 midpoints)
+
+
+def _bisect_top(c_of_h: SoundSpeedOfHeight, lo: float, hi: float, below: float) -> float:
+    """The top (m) of the layer where c stays at its ground value, between lo (c not below ``below``) and hi
+    (c below it): _BISECT_STEPS halvings, ``mid = 0.5 (lo + hi)``, hi = mid where c(mid) < below, else
+    lo = mid; returns lo.
+
+    The same midpoints and decisions as one halving per call, made _BISECT_LEVELS at a time: each call
+    evaluates the whole tree of midpoints the next levels can reach (63, in heap order: node i's halves are
+    2i + 1 where c < below, 2i + 2 where not), then walks it. c_of_h is pointwise, so the result is the
+    one-at-a-time bisection's bit for bit in 10 calls instead of 60 (columns over terrain whose plane lies
+    below the ground there, where c is flat up to the ground: 376 of the consultant upward case's 4,872,
+    0.38 ms each instead of about 1.5 ms)."""
+    done = 0
+    while done < _BISECT_STEPS:
+        levels = min(_BISECT_LEVELS, _BISECT_STEPS - done)
+        brackets = [(lo, hi)]
+        mids: list[float] = []
+        for _ in range(levels):
+            nxt = []
+            for a, b in brackets:
+                m = 0.5 * (a + b)
+                mids.append(m)
+                nxt += [(a, m), (m, b)]
+            brackets = nxt
+        c = np.asarray(c_of_h(np.array(mids)), float)
+        i = 0
+        for _ in range(levels):
+            if float(c[i]) < below:
+                hi = mids[i]
+                i = 2 * i + 1
+            else:
+                lo = mids[i]
+                i = 2 * i + 2
+        done += levels
+    return lo
 
 
 def _ray_span(c: np.ndarray, u: np.ndarray, half: np.ndarray, c_ground: float) -> np.ndarray:

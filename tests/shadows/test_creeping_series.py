@@ -119,6 +119,43 @@ def test_limiting_ray_without_a_grazing_ray_is_the_full_table(profile):
         assert max(calls) == 401 and sum(calls) == 401 + 8  # the probes, then the first interval's 8 nodes
 
 
+def _bisect_one_at_a_time(c_of_h, lo: float, hi: float, below: float) -> float:
+    """The flat layer's top as limiting_ray found it until 2026-12-05: one halving per evaluation, 60 of them."""
+    for _ in range(60):
+        half_way = 0.5 * (lo + hi)
+        if float(np.asarray(c_of_h(np.array([half_way])), float)[0]) < below:
+            hi = half_way
+        else:
+            lo = half_way
+    return lo
+
+
+@pytest.mark.parametrize("top", [0.1, 1.0, 2.7, 13.3333, 99.9])
+def test_flat_layer_top_is_the_one_at_a_time_bisection(top):
+    """A column whose c stays at its ground value up to ``top`` (a plane below the terrain there, or the log-law
+    wind below z_g): limiting_ray bisects for that top six halvings per call; oracle: one halving per call. The
+    same h_g bit for bit (and the same table), in 10 calls instead of 60."""
+
+    def c_of_h(h):
+        return 340.0 - 0.05 * np.maximum(np.asarray(h, float) - top, 0.0)
+
+    calls = []
+
+    def counted(h):
+        calls.append(np.size(h))
+        return c_of_h(h)
+
+    ray = limiting_ray(counted, 400.0, 512)
+    probe = np.concatenate([[0.0], np.geomspace(1e-4, 400.0, 400)])
+    cp = c_of_h(probe)
+    first = int(np.flatnonzero(cp < cp[0] * (1.0 - 1e-12))[0])
+    want = _bisect_one_at_a_time(c_of_h, float(probe[first - 1]), float(probe[first]), cp[0] * (1.0 - 1e-12))
+    assert ray.h_g == want
+    # c must drop by 1e-12 of c_ground to count as below it: 340e-12 m/s at 0.05 1/s, 6.8e-9 m above the top
+    assert 0.0 <= ray.h_g - top <= 7e-9 and ray.upward
+    assert len(calls) == 1 + 10 + 1  # the probes, 10 bisection calls of up to 63 midpoints, the quadrature
+
+
 @pytest.mark.parametrize("f", [100.0, pytest.param(500.0, marks=pytest.mark.slow)])
 def test_numerov_series_reproduces_the_closed_form(f):
     z = complex(delany_bazley_impedance(f, GRASS))
