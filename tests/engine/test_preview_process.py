@@ -8,6 +8,7 @@ must give that same file from the parent, with the reason, and leave no process 
 from __future__ import annotations
 
 import json
+import re
 import sys
 import warnings
 from pathlib import Path
@@ -76,7 +77,7 @@ def test_failed_child_falls_back_to_the_parent(tmp_path, parent_png, command, re
     with pytest.warns(RuntimeWarning, match="drawn in this process"):
         write_outcome(_field_outcome(), ["field", "report"], tmp_path / "res", preview_worker=worker)
     assert worker.fallback_reason is not None
-    assert __import__("re").search(reason, worker.fallback_reason), worker.fallback_reason
+    assert re.search(reason, worker.fallback_reason), worker.fallback_reason
     assert (tmp_path / "res" / "preview.png").read_bytes() == parent_png
     assert worker.process is None or worker.process.poll() is not None  # nothing left running
 
