@@ -16,6 +16,7 @@ import numpy as np
 from bentray.engine.profiles import Profile
 
 GroundHeight = Callable[[np.ndarray], np.ndarray]  # xy (N, 2) metres -> ground z (N,) metres
+_COLUMN_MIN = 16  # points from which a vertical column's ground height is looked up once
 
 
 class AboveGround(Profile):
@@ -34,9 +35,18 @@ class AboveGround(Profile):
         self._native = base._native  # type: ignore[misc]
 
     def heights(self, p: np.ndarray) -> np.ndarray:
-        """Points with z replaced by the height above the ground (clamped at 0)."""
+        """Points with z replaced by the height above the ground (clamped at 0).
+
+        A vertical column (every point at the same x and y, as the limiting rays and wavenumber integrals of
+        the shadow stages ask for: thousands of heights at a time) looks its ground height up once; the
+        lookup is per point, so the heights are the same bit for bit."""
         q = np.array(p, dtype=np.float64, copy=True)
-        q[:, 2] = np.maximum(q[:, 2] - self.ground_height(q[:, :2]), 0.0)
+        xy = q[:, :2]
+        if len(q) > _COLUMN_MIN and bool(np.all(xy == xy[0])):
+            ground = np.broadcast_to(self.ground_height(xy[:1]), (len(q),))
+        else:
+            ground = self.ground_height(xy)
+        q[:, 2] = np.maximum(q[:, 2] - ground, 0.0)
         return q
 
     def _m(self, p: np.ndarray) -> np.ndarray:

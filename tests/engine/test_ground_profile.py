@@ -72,3 +72,32 @@ def test_exact_baseline_media_refuse_a_shifted_profile():
 
     with pytest.raises(JobInputError, match="profile_heights"):
         run_job(Job.model_validate(spec))
+
+
+def test_a_vertical_column_looks_its_ground_up_once_with_the_same_heights():
+    """Thousands of heights above one (x, y) (the shadow stages' columns): one ground lookup, and the same
+    speeds bit for bit as the lookup per point (oracle: a ground function that cannot be broadcast wrongly,
+    called point by point); points at different (x, y), or a NaN coordinate, keep the per-point lookup."""
+    calls = []
+
+    def ground(xy):
+        calls.append(len(xy))
+        return 3.0 + 0.1 * np.sin(xy[:, 0]) * np.cos(0.3 * xy[:, 1])
+
+    prof = AboveGround(Log(c0=340.0, b=-1.0, z_g=1.0), ground, flat=False)
+    z = np.linspace(-5.0, 400.0, 4096)
+    col = np.column_stack([np.full(z.size, 123.4), np.full(z.size, -56.7), z])
+    got = prof.sound_speed(col)
+    assert calls == [1]
+    base = Log(c0=340.0, b=-1.0, z_g=1.0)
+    g0 = float(ground(np.array([[123.4, -56.7]]))[0])
+    per_point = np.concatenate([base.sound_speed(np.array([[123.4, -56.7, max(zi - g0, 0.0)]])) for zi in z])
+    np.testing.assert_array_equal(got, per_point)
+    calls.clear()
+    scattered = col.copy()
+    scattered[7, 0] += 1.0
+    prof.sound_speed(scattered)
+    with_nan = col.copy()
+    with_nan[:, 0] = np.nan  # nan == nan is False: no column, the lookup per point (nan levels as before)
+    assert np.all(np.isnan(prof.sound_speed(with_nan)))
+    assert calls == [col.shape[0], col.shape[0]]
