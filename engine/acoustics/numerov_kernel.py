@@ -7,16 +7,17 @@ and cc = h^2 / 12,
     phi_new = (2 (1 - 5 cc f_here) phi_here - (1 + cc f_last) phi_last) / (1 + cc f_next).
 
 As numpy expressions that row is about ten passes over N complex numbers with temporaries and a complex
-division by Smith's algorithm; it took 7.7-8.3 ns per row and wavenumber (the consultant example's
-refractive shadow: 12 s of its 26 s). :func:`numerov_row` does one pass in real arithmetic and divides
-through the conjugate, (a + ib) / (c + id) = ((ac + bd) + i(bc - ad)) / (c^2 + d^2): half the time. That
-division is safe here because the divisor 1 + cc (k^2 - kappa^2) stays near 1: kappa runs over
-0..2 k0 and cc k0^2 = (2 pi / 12)^2 / 12 = 0.023 at the Numerov step lambda / 12, so |c + id| lies between
-about 0.9 and 1.1 (times 1 + LAYER_STRENGTH in the absorbing layer); nothing can overflow or underflow in
-c^2 + d^2. The result differs from numpy's (Smith's division, possibly fused multiply-adds) by rounding
-only (tests/shadows/test_numerov_kernel.py, against the numpy row kept in tests/reference/numerov_numpy.py):
-a row to 4e-16 of its largest value; levels to 1e-9 dB within 40 dB of the loudest point and 1e-4 dB deep in a
-shadow, where the FFT's cancellation amplifies either form's rounding (1.3e-5 dB at most on the consultant map).
+division by Smith's algorithm: 7.7-9.8 ns per row and wavenumber (the consultant example's refractive
+shadow: 12 s of its 26 s). :func:`numerov_row` does one pass in real arithmetic and divides through the
+conjugate, (a + ib) / (c + id) = ((ac + bd) + i(bc - ad)) / (c^2 + d^2): 1.4-1.8 ns, a fifth of the time.
+That division is safe here because the divisor 1 + cc (k^2 - kappa^2) stays near 1: kappa runs over
+0..2 k0 and cc k0^2 = (2 pi / 12)^2 / 12 = 0.023 at the Numerov step lambda / 12, so c + id lies between
+about 0.93 and 1.03 (the absorbing layer adds an imaginary part of at most 0.023 LAYER_STRENGTH); nothing
+can overflow or underflow in c^2 + d^2. The result differs from numpy's (Smith's division, possibly fused
+multiply-adds) by rounding only (tests/shadows/test_numerov_kernel.py, against the numpy row kept in
+tests/reference/numerov_numpy.py): a row to 4e-16 of its largest value; levels to 1e-9 dB within 40 dB of
+the loudest point and 1e-4 dB deep in a shadow, where the FFT's cancellation amplifies either form's
+rounding (1.3e-5 dB at most on the consultant map).
 """
 
 from __future__ import annotations
