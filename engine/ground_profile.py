@@ -42,7 +42,8 @@ class AboveGround(Profile):
         lookup is per point, so the heights are the same bit for bit."""
         q = np.array(p, dtype=np.float64, copy=True)
         xy = q[:, :2]
-        if len(q) > _COLUMN_MIN and bool(np.all(xy == xy[0])):
+        column = len(q) > _COLUMN_MIN and xy[-1, 0] == xy[0, 0] and xy[-1, 1] == xy[0, 1]  # cheap test first
+        if column and bool(np.all(xy == xy[0])):
             ground = np.broadcast_to(self.ground_height(xy[:1]), (len(q),))
         else:
             ground = self.ground_height(xy)

@@ -51,13 +51,23 @@ def cell_hessians(mesh: CellMesh) -> np.ndarray:
     )
     if not ok.all():
         raise ValueError("cell_hessians: a cell has no vertex (its face planes do not bound it)")
-    h = 0.5 * (half + np.swapaxes(half, 1, 2))
-    # boundary cells miss the share of the faces they lack (a ground slab would get half its H_zz): scale by
-    # C = M_inner^+ M_all, M = sum of A_f n_f n_f^T over the inner / all used faces (identity inside)
     nb = mesh.neighbours
     edge = ~np.all((nb >= 0) | (nb == FACE_UNUSED), axis=1)
+    return packed_hessians(half, m_all, m_inner, edge, centre)
+
+
+def packed_hessians(
+    half: np.ndarray, m_all: np.ndarray, m_inner: np.ndarray, edge: np.ndarray, centre: np.ndarray
+) -> np.ndarray:
+    """(n, 9) rows [Hxx, Hyy, Hzz, Hxy, Hxz, Hyz, cx, cy, cz] from the face sums of each cell.
+
+    half (n, 3, 3): sum_f w_f dg_f n_f^T (symmetrised here); m_all, m_inner (n, 3, 3): sum of A_f n_f n_f^T over
+    all used / the inner faces; edge (n,) bool: cells with a boundary face; centre (n, 3) m. Boundary cells miss
+    the share of the faces they lack (a ground slab would get half its H_zz): they are scaled by
+    C = M_inner^+ M_all (identity inside), directions the inner faces cover poorly dropped (rcond 0.25)."""
+    h = 0.5 * (half + np.swapaxes(half, 1, 2))
     if edge.any():
-        c = np.linalg.pinv(m_inner[edge], rcond=0.25) @ m_all[edge]  # poorly covered directions: dropped
+        c = np.linalg.pinv(m_inner[edge], rcond=0.25) @ m_all[edge]
         he = h[edge]
         h[edge] = 0.5 * (he @ c + np.swapaxes(c, 1, 2) @ he)
     return np.ascontiguousarray(
