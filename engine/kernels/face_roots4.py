@@ -1,0 +1,182 @@
+"""The exit search of a tetrahedron in one pass over its four faces as 4-wide vectors (for the lean kernel).
+
+The lean traversal (kernels/lean.py) finds a cell's exit face face by face: per face the plane coefficients
+(A, B, C) of the parabolic curve (parabolic.plane_coefficients), a skip when A <= 0 and B <= 0 (no upward
+crossing for u > 0), and roots.face_exit_parameter, then the smallest parameter wins (the first face on a
+tie). For a tetrahedron that is four times ~25 scalar operations, a square root, a division and five
+data-dependent branches: the branches' outcomes change from ray to ray, so with several rays in flight per
+thread (the lean kernel's lanes) they are mispredicted often.
+
+``exit_of_tet`` does the same for the four faces at once with LLVM vector operations (one <4 x double> per
+quantity: the packed record's four face rows are loaded and transposed, so mx, my, mz and h are vectors),
+every branch of the scalar code written as a lane-wise select, and returns (parameter, face) as the scalar
+loop does. The arithmetic per face is the scalar code's, operation for operation and in the same order
+(no fused multiply-add: the IR carries no fast-math flags), and IEEE square root and division are correctly
+rounded in vector form too, so each lane's value is bit-identical to the scalar one; the reduction takes the
+four results in face order with the scalar loop's strict ``<``. Equivalence of the branch-free form
+(docs/physics.md section 9, "The exit search as vectors"):
+
+- face_exit_parameter's linear shortcut of upcrossing_root (A == 0) returns what the general formula gives:
+  -C / B is C / q with q = -(B + sqrt(B B)) / 2 = -B exactly (sqrt(fl(B^2)) = |B| while B^2 is a normal
+  float), and with B < 0 the general formula's q / A is +-inf or nan, not a root in (0, inf);
+- a non-positive or nan discriminant gives +inf in both (the scalar code's nan root fails 0 < r < inf);
+- the skip (A <= 0 and B <= 0), unused faces (neighbour FACE_UNUSED) and the entry face (C = 0, no
+  on-face exit) are masks.
+
+tests/engine/test_face_roots4.py checks it against the scalar loop on random and adversarial inputs (zeros of
+either sign, nan, inf, subnormal and huge coefficients, points on faces).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from llvmlite import ir  # type: ignore[import-untyped]
+from numba.core import cgutils, types
+from numba.core.extending import intrinsic
+
+from bentray.engine.constants import FACE_UNUSED
+
+__all__ = ["exit_of_tet", "exit_of_tet_planes"]
+
+_V4 = ir.VectorType(ir.DoubleType(), 4)
+_I64 = ir.IntType(64)
+
+
+def _splat(builder: Any, value: Any) -> Any:
+    """A <4 x double> with every lane ``value``."""
+    vec = ir.Constant(_V4, ir.Undefined)
+    vec = builder.insert_element(vec, value, ir.Constant(ir.IntType(32), 0))
+    return builder.shuffle_vector(vec, vec, ir.Constant(ir.VectorType(ir.IntType(32), 4), [0, 0, 0, 0]))
+
+
+def _const4(values: list[float]) -> Any:
+    return ir.Constant(_V4, [ir.Constant(ir.DoubleType(), float(v)) for v in values])
+
+
+def _shuffle(builder: Any, a: Any, b: Any, mask: list[int]) -> Any:
+    return builder.shuffle_vector(a, b, ir.Constant(ir.VectorType(ir.IntType(32), 4), mask))
+
+
+def _splat_i64(builder: Any, value: Any) -> Any:
+    """A <4 x i64> with every lane ``value``."""
+    vty = ir.VectorType(_I64, 4)
+    vec = builder.insert_element(ir.Constant(vty, ir.Undefined), value, ir.Constant(ir.IntType(32), 0))
+    return builder.shuffle_vector(vec, vec, ir.Constant(ir.VectorType(ir.IntType(32), 4), [0, 0, 0, 0]))
+
+
+def _tet_exit(builder: Any, faces: list[Any], unused: Any, scalars: list[Any], entry: Any, tol: Any) -> tuple[Any, Any]:
+    """IR of the search: faces, four <4 x double> rows (mx, my, mz, h); unused, <4 x i1> (faces to leave out);
+    scalars, the nine doubles g0 g1 g2 p0 p1 p2 x0 x1 x2; entry (i64) and tol (double). Returns the IR values
+    (parameter double, face i64)."""
+    # transpose the four (mx, my, mz, h) rows into per-quantity vectors over the faces
+    t0 = _shuffle(builder, faces[0], faces[1], [0, 4, 2, 6])  # mx0 mx1 mz0 mz1
+    t1 = _shuffle(builder, faces[0], faces[1], [1, 5, 3, 7])  # my0 my1 h0 h1
+    t2 = _shuffle(builder, faces[2], faces[3], [0, 4, 2, 6])
+    t3 = _shuffle(builder, faces[2], faces[3], [1, 5, 3, 7])
+    mx = _shuffle(builder, t0, t2, [0, 1, 4, 5])
+    mz = _shuffle(builder, t0, t2, [2, 3, 6, 7])
+    my = _shuffle(builder, t1, t3, [0, 1, 4, 5])
+    hh = _shuffle(builder, t1, t3, [2, 3, 6, 7])
+    g0v, g1v, g2v, p0v, p1v, p2v, x0v, x1v, x2v = (_splat(builder, a) for a in scalars)
+    fmul, fadd, fsub = builder.fmul, builder.fadd, builder.fsub
+    # parabolic.plane_coefficients: a = 0.25 (mx g0 + my g1 + mz g2), b = mx p0 + my p1 + mz p2,
+    # c = mx x0 + my x1 + mz x2 - h, each summed left to right as there
+    a = fmul(_const4([0.25] * 4), fadd(fadd(fmul(mx, g0v), fmul(my, g1v)), fmul(mz, g2v)))
+    b = fadd(fadd(fmul(mx, p0v), fmul(my, p1v)), fmul(mz, p2v))
+    c = fsub(fadd(fadd(fmul(mx, x0v), fmul(my, x1v)), fmul(mz, x2v)), hh)
+    zeros = _const4([0.0] * 4)
+    lane = ir.Constant(ir.VectorType(_I64, 4), [ir.Constant(_I64, f) for f in range(4)])
+    is_entry = builder.icmp_signed("==", lane, _splat_i64(builder, entry))
+    c_eff = builder.select(is_entry, zeros, c)  # the entry face: C is 0 there
+    # roots.upcrossing_root in its general form (module docstring: the linear shortcut gives the same)
+    disc = fsub(fmul(b, b), fmul(fmul(_const4([4.0] * 4), a), c_eff))
+    ok = builder.fcmp_ordered(">", disc, zeros)  # false for nan, as 'disc <= 0' is then false but the root nan
+    sqrt_fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(_V4, [_V4]), "llvm.sqrt.v4f64")
+    sq = builder.call(sqrt_fn, [builder.select(ok, disc, zeros)])
+    pos = builder.fcmp_ordered(">=", b, zeros)
+    half = _const4([-0.5] * 4)
+    q_pos = fmul(half, fadd(b, sq))
+    q_neg = fmul(half, fsub(b, sq))
+    r = builder.fdiv(builder.select(pos, c_eff, q_neg), builder.select(pos, q_pos, a))
+    inf = _const4([float("inf")] * 4)
+    valid = builder.and_(ok, builder.and_(builder.fcmp_ordered(">", r, zeros), builder.fcmp_ordered("<", r, inf)))
+    # roots.face_exit_parameter's on-face exit: not the entry face, c > -tol, moving out (b > 0, or b == 0, a > 0)
+    neg_tol = _splat(builder, builder.fsub(ir.Constant(ir.DoubleType(), -0.0), tol))  # -tol exactly
+    out_going = builder.or_(
+        builder.fcmp_ordered(">", b, zeros),
+        builder.and_(builder.fcmp_ordered("==", b, zeros), builder.fcmp_ordered(">", a, zeros)),
+    )
+    on_face = builder.and_(builder.not_(is_entry), builder.and_(builder.fcmp_ordered(">", c, neg_tol), out_going))
+    res = builder.select(valid, r, builder.select(on_face, zeros, inf))
+    # the lean loop's skip (A <= 0 and B <= 0: +inf in any case, see roots) and unused faces
+    skip = builder.and_(builder.fcmp_ordered("<=", a, zeros), builder.fcmp_ordered("<=", b, zeros))
+    res = builder.select(builder.or_(skip, unused), inf, res)
+    # the loop's reduction: faces in order, strict '<' (the first face wins a tie)
+    param = ir.Constant(ir.DoubleType(), float("inf"))
+    face = ir.Constant(_I64, -1)
+    for f in range(4):
+        v = builder.extract_element(res, ir.Constant(ir.IntType(32), f))
+        better = builder.fcmp_ordered("<", v, param)
+        param = builder.select(better, v, param)
+        face = builder.select(better, ir.Constant(_I64, f), face)
+    return param, face
+
+
+def _rows(builder: Any, row: Any) -> list[Any]:
+    """The four <4 x double> face rows from a pointer to the first double of (mx, my, mz, h) x 4."""
+    vptr = builder.bitcast(row, _V4.as_pointer())
+    return [builder.load(builder.gep(vptr, [ir.Constant(_I64, f)]), align=8) for f in range(4)]
+
+
+def _exit_of_tet_intrinsic(typingctx, rec, cell, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol, o_nb):  # noqa: ARG001
+    """(parameter, face) of the lean loop over the 4 faces of row ``cell`` of the packed records ``rec``
+    (mesh/packed.py: planes at 0..15, neighbours at o_nb..o_nb+3 as float64)."""
+    if not (isinstance(rec, types.Array) and rec.ndim == 2 and rec.dtype == types.float64 and rec.layout == "C"):
+        return None
+    sig = types.Tuple((types.float64, types.int64))(rec, cell, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol, o_nb)
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        zero = context.get_constant(types.intp, 0)
+        row = cgutils.get_item_pointer(
+            context, builder, aryty, ary, [args[1], zero], wraparound=False, boundscheck=False
+        )
+        nbv = builder.load(builder.bitcast(builder.gep(row, [args[13]]), _V4.as_pointer()), align=8)
+        unused = builder.fcmp_ordered("==", nbv, _const4([float(FACE_UNUSED)] * 4))
+        param, face = _tet_exit(builder, _rows(builder, row), unused, list(args[2:11]), args[11], args[12])
+        return context.make_tuple(builder, signature.return_type, [param, face])
+
+    return sig, codegen
+
+
+def _exit_of_tet_planes_intrinsic(typingctx, planes, neighbours, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol):  # noqa: ARG001
+    """The same search on one cell's planes (4, 4) float64 and neighbours (4,) int64 (C-contiguous; the generic
+    kernel's per-cell views), without the lean loop's skip changing anything (A <= 0, B <= 0 give +inf)."""
+    ok_planes = isinstance(planes, types.Array) and planes.ndim == 2 and planes.dtype == types.float64
+    ok_nb = isinstance(neighbours, types.Array) and neighbours.ndim == 1 and neighbours.dtype == types.int64
+    if not (ok_planes and ok_nb and planes.layout == "C" and neighbours.layout in ("C", "A")):
+        return None
+    sig = types.Tuple((types.float64, types.int64))(planes, neighbours, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol)
+
+    def codegen(context, builder, signature, args):
+        pty, nty = signature.args[0], signature.args[1]
+        pl = context.make_array(pty)(context, builder, args[0])
+        nbs = context.make_array(nty)(context, builder, args[1])
+        zero = context.get_constant(types.intp, 0)
+        row = cgutils.get_item_pointer(context, builder, pty, pl, [zero, zero], wraparound=False, boundscheck=False)
+        unused = ir.Constant(ir.VectorType(ir.IntType(1), 4), None)
+        for f in range(4):
+            idx = context.get_constant(types.intp, f)
+            ptr = cgutils.get_item_pointer(context, builder, nty, nbs, [idx], wraparound=False, boundscheck=False)
+            is_unused = builder.icmp_signed("==", builder.load(ptr), ir.Constant(_I64, FACE_UNUSED))
+            unused = builder.insert_element(unused, is_unused, ir.Constant(ir.IntType(32), f))
+        param, face = _tet_exit(builder, _rows(builder, row), unused, list(args[2:11]), args[11], args[12])
+        return context.make_tuple(builder, signature.return_type, [param, face])
+
+    return sig, codegen
+
+
+exit_of_tet: Any = intrinsic(_exit_of_tet_intrinsic)
+exit_of_tet_planes: Any = intrinsic(_exit_of_tet_planes_intrinsic)
