@@ -38,11 +38,12 @@ from bentray.engine.result import RayPaths, TraceResult
 from bentray.engine.wind import WIND_NONE, check_wind
 
 KERNELS = ("auto", "generic", "lean")
-# Lean kernel (kernels/lean.py): rays in flight per thread, with each ray's next cell record prefetched
-# once its exit face is known, for meshes whose packed records exceed LEAN_CACHED_BYTES (they come from
-# memory); smaller meshes stay in cache, where lanes only add bookkeeping (A-LD slabs, 0.9 MB: 62 ns per
-# crossing with one lane, 65-72 with several; the desert, 195 MB: 175 ns with one, 103-122 with 4-8;
-# docs/physics.md section 9). `bentray bench --only throughput` times both; every setting gives the same bits.
+# Lean kernel (kernels/lean.py): rays in flight per thread (its stages run across them, four at a time as
+# vectors), with each ray's next cell record prefetched once its exit face is known for meshes whose packed
+# records exceed LEAN_CACHED_BYTES (they come from memory; smaller ones stay in cache, where a prefetch is
+# wasted work). Desert (195 MB of records), one thread: 1 lane 120-128 ns per crossing, 8 lanes with prefetch
+# 50 ns; A-LD slabs (0.9 MB): 1 lane 59 ns, 8 lanes without prefetch 49 ns, with 52 ns (2026-12-05; docs/physics.md
+# section 9). `bentray bench --only throughput` times them; every setting gives the same bits.
 LEAN_LANES = 8
 LEAN_CACHED_BYTES = 8 << 20
 
@@ -214,15 +215,15 @@ def trace_lean(
 ) -> TraceResult:
     """The plain parabolic trace on the lean kernel (kernels/lean.py): the final states of :func:`trace`
     bit for bit, without paths, field, wind or paraxial state. Arguments as in :func:`trace`; lanes : rays
-    in flight per thread, >= 1, and prefetch : 0 or 1 (None: LEAN_LANES lanes with prefetch for meshes whose
-    packed records exceed LEAN_CACHED_BYTES, else one lane without). The mesh's packed records
+    in flight per thread, >= 1 (None: LEAN_LANES), and prefetch : 0 or 1 (None: 1 for meshes whose packed
+    records exceed LEAN_CACHED_BYTES, else 0). The mesh's packed records
     (mesh/packed.py) are built on the first trace of a mesh and kept while it lives. Returns a TraceResult
     with launch angles NaN (the caller fills them in)."""
     origins, directions, start_cells = ray_inputs("parabolic", origins, directions, start_cells, max_time_s)
     packed = packed_cells(mesh)
     from_memory = packed.rec.nbytes > LEAN_CACHED_BYTES
-    lanes = (LEAN_LANES if from_memory else 1) if lanes is None else lanes
-    prefetch = int(lanes > 1) if prefetch is None else prefetch
+    lanes = LEAN_LANES if lanes is None else lanes
+    prefetch = int(from_memory and lanes > 1) if prefetch is None else prefetch
     if prefetch not in (0, 1):
         raise ValueError(f"prefetch must be 0 or 1, got {prefetch!r}")
     if int(lanes) < 1:

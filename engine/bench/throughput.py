@@ -10,12 +10,12 @@ terrain mesh builder is unavailable.
 
 Kernels (tracer.trace): ``generic`` (traverse.trace_rays, what every trace with a field, paths, wind or
 paraxial state runs) and ``lean`` (kernels/lean.py, the plain parabolic trace on packed cell records;
-bit-identical final states) with one ray in flight and no prefetch (``lean 1 lane``), and with
-tracer.LEAN_LANES rays in flight and each next record prefetched (the default for meshes larger than
-tracer.LEAN_CACHED_BYTES of records). ``generic + wind``: the generic kernel with a wind (the ridge wind of
-the built-in ridge scene over the desert, a log-law wind over the slabs): the wind's cost per crossing is its
-time less the generic kernel's, in the same run. With 1 numba thread and with all of them (restored
-afterwards).
+bit-identical final states) with one ray in flight and no prefetch (``lean 1 lane``), and as the tracer
+runs it: tracer.LEAN_LANES rays in flight, each next record prefetched for meshes larger than
+tracer.LEAN_CACHED_BYTES of records (the desert) and not for smaller ones (the slabs). ``generic + wind``:
+the generic kernel with a wind (the ridge wind of the built-in ridge scene over the desert, a log-law wind
+over the slabs): the wind's cost per crossing is its time less the generic kernel's, in the same run. With
+1 numba thread and with all of them (restored afterwards).
 Timing: ``rounds`` interleaved rounds (every kernel once per round, in turn, so that a change in the
 machine's load hits all alike), each the best of ``repeats`` warm runs; a kernel's time is its best over
 rounds; the ratios compare times of the same run. The load average is printed beside the numbers.
@@ -96,7 +96,7 @@ def _runner(sc: SceneMesh, kernel: str) -> Callable[[], TraceResult]:
         return lambda: trace(sc.mesh, "parabolic", 340.0, *args[2:], kernel="generic", wind=wind, **kw)
     if kernel == "lean 1 lane":
         return lambda: trace_lean(*args, prefetch=0, lanes=1, **kw)
-    return lambda: trace_lean(*args, prefetch=1, lanes=LEAN_LANES, **kw)
+    return lambda: trace_lean(*args, **kw)  # the tracer's defaults: LEAN_LANES lanes, prefetch by size
 
 
 def measure_kernels(
@@ -198,9 +198,9 @@ def run(quick: bool, scene_cache: dict[str, Any] | None = None) -> Section:
         f"{count} rays over the sphere, 10 s, at most 3 reflections, parabolic curve; {rounds} interleaved round(s) "
         f"of {repeats} warm run(s) per kernel, best taken. Load average (1 min) {load_before[0]:.1f} before, "
         f"{load_after[0]:.1f} after: on a shared machine compare the ratios of one run, not absolute times. "
-        f"`lean 1 lane`: kernels/lean.py with one ray in flight, no prefetch (the default for meshes whose records "
-        f"fit in cache); `{LEAN_DEFAULT}`: {LEAN_LANES} rays in flight per thread, each next cell record "
-        f"prefetched (the default for larger meshes; bit-identical final states). "
+        f"`lean 1 lane`: kernels/lean.py with one ray in flight, no prefetch; `{LEAN_DEFAULT}`: the tracer's "
+        f"default, {LEAN_LANES} rays in flight per thread, each next cell record prefetched where the records "
+        f"do not fit in cache (the desert, not the slabs); bit-identical final states. "
         f"Paper reference (one 3.2 GHz core, 2016): Desert(m) 10K rays, 179 cells per ray, "
         f"219 ms, ~8M crossings per second, {PAPER_NS:.0f} ns per crossing."
     )
@@ -209,8 +209,9 @@ def run(quick: bool, scene_cache: dict[str, Any] | None = None) -> Section:
         f"{costs['flop_s'] * 1e9:.2f} ns, sqrt {costs['sqrt_s'] * 1e9:.2f} ns, division {costs['div_s'] * 1e9:.2f} ns, "
         f"log1p {costs['log1p_s'] * 1e9:.1f} ns (independent chains). Per crossing: memory bound = the cache lines "
         "of one cell's records at that bandwidth (every cell from memory), arithmetic bound = 235 flops, 9 sqrt, "
-        "10 divisions at those costs (the lean kernel's memory bound counts its packed record's lines); "
-        "`x_memory_bound` / `x_arithmetic_bound` = measured ns per crossing over each."
+        "10 divisions at those costs (the generic crossing's operations, one at a time; the lean kernel does its "
+        "face search and advance as 4-wide vectors, so it can go below this bound; its memory bound counts its "
+        "packed record's lines); `x_memory_bound` / `x_arithmetic_bound` = measured ns per crossing over each."
     )
     one = [r for r in table.rows if r["threads"] == 1 and r["kernel"]]
     for scene in dict.fromkeys(r["scene"] for r in one):

@@ -37,7 +37,7 @@ from numba.core.extending import intrinsic
 
 from bentray.engine.constants import FACE_UNUSED
 
-__all__ = ["exit_of_tet", "exit_of_tet_planes"]
+__all__ = ["exit_of_cell8", "exit_of_tet", "exit_of_tet_planes"]
 
 _V4 = ir.VectorType(ir.DoubleType(), 4)
 _I64 = ir.IntType(64)
@@ -65,10 +65,12 @@ def _splat_i64(builder: Any, value: Any) -> Any:
     return builder.shuffle_vector(vec, vec, ir.Constant(ir.VectorType(ir.IntType(32), 4), [0, 0, 0, 0]))
 
 
-def _tet_exit(builder: Any, faces: list[Any], unused: Any, scalars: list[Any], entry: Any, tol: Any) -> tuple[Any, Any]:
+def _tet_exit(
+    builder: Any, faces: list[Any], unused: Any, scalars: list[Any], entry: Any, tol: Any, base: int = 0
+) -> tuple[Any, Any]:
     """IR of the search: faces, four <4 x double> rows (mx, my, mz, h); unused, <4 x i1> (faces to leave out);
-    scalars, the nine doubles g0 g1 g2 p0 p1 p2 x0 x1 x2; entry (i64) and tol (double). Returns the IR values
-    (parameter double, face i64)."""
+    scalars, the nine doubles g0 g1 g2 p0 p1 p2 x0 x1 x2; entry (i64) and tol (double); base, the index of the
+    first of the four faces. Returns the IR values (parameter double, face i64; -1 and +inf: no exit)."""
     # transpose the four (mx, my, mz, h) rows into per-quantity vectors over the faces
     t0 = _shuffle(builder, faces[0], faces[1], [0, 4, 2, 6])  # mx0 mx1 mz0 mz1
     t1 = _shuffle(builder, faces[0], faces[1], [1, 5, 3, 7])  # my0 my1 h0 h1
@@ -86,7 +88,7 @@ def _tet_exit(builder: Any, faces: list[Any], unused: Any, scalars: list[Any], e
     b = fadd(fadd(fmul(mx, p0v), fmul(my, p1v)), fmul(mz, p2v))
     c = fsub(fadd(fadd(fmul(mx, x0v), fmul(my, x1v)), fmul(mz, x2v)), hh)
     zeros = _const4([0.0] * 4)
-    lane = ir.Constant(ir.VectorType(_I64, 4), [ir.Constant(_I64, f) for f in range(4)])
+    lane = ir.Constant(ir.VectorType(_I64, 4), [ir.Constant(_I64, base + f) for f in range(4)])
     is_entry = builder.icmp_signed("==", lane, _splat_i64(builder, entry))
     c_eff = builder.select(is_entry, zeros, c)  # the entry face: C is 0 there
     # roots.upcrossing_root in its general form (module docstring: the linear shortcut gives the same)
@@ -119,7 +121,7 @@ def _tet_exit(builder: Any, faces: list[Any], unused: Any, scalars: list[Any], e
         v = builder.extract_element(res, ir.Constant(ir.IntType(32), f))
         better = builder.fcmp_ordered("<", v, param)
         param = builder.select(better, v, param)
-        face = builder.select(better, ir.Constant(_I64, f), face)
+        face = builder.select(better, ir.Constant(_I64, base + f), face)
     return param, face
 
 
@@ -178,5 +180,47 @@ def _exit_of_tet_planes_intrinsic(typingctx, planes, neighbours, g0, g1, g2, p0,
     return sig, codegen
 
 
+def _exit_of_cell8_intrinsic(typingctx, rec, cell, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol, o_nb, k_faces):  # noqa: ARG001
+    """(parameter, face) of the lean loop over the K faces (4 < K <= 8) of row ``cell`` of the packed records:
+    two groups of four, faces K..7 masked (their rows and neighbour slots lie inside the record: a record holds
+    6 K + 8 >= 8 (4 + 1) doubles), the second group taken only where strictly smaller (the loop's first
+    minimum)."""
+    if not (isinstance(rec, types.Array) and rec.ndim == 2 and rec.dtype == types.float64 and rec.layout == "C"):
+        return None
+    sig = types.Tuple((types.float64, types.int64))(
+        rec, cell, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol, o_nb, k_faces
+    )
+
+    def codegen(context, builder, signature, args):
+        aryty = signature.args[0]
+        ary = context.make_array(aryty)(context, builder, args[0])
+        zero = context.get_constant(types.intp, 0)
+        row = cgutils.get_item_pointer(
+            context, builder, aryty, ary, [args[1], zero], wraparound=False, boundscheck=False
+        )
+        nb_row = builder.gep(row, [args[13]])
+        k_vec = _splat_i64(builder, args[14])
+        results = []
+        for base in (0, 4):
+            nbv = builder.load(
+                builder.bitcast(builder.gep(nb_row, [ir.Constant(_I64, base)]), _V4.as_pointer()), align=8
+            )
+            idx = ir.Constant(ir.VectorType(_I64, 4), [ir.Constant(_I64, base + f) for f in range(4)])
+            unused = builder.or_(
+                builder.fcmp_ordered("==", nbv, _const4([float(FACE_UNUSED)] * 4)),
+                builder.icmp_signed(">=", idx, k_vec),
+            )
+            faces = _rows(builder, builder.gep(row, [ir.Constant(_I64, 4 * base)]))
+            results.append(_tet_exit(builder, faces, unused, list(args[2:11]), args[11], args[12], base))
+        (pa, fa), (pb, fb) = results
+        better = builder.fcmp_ordered("<", pb, pa)
+        param = builder.select(better, pb, pa)
+        face = builder.select(better, fb, fa)
+        return context.make_tuple(builder, signature.return_type, [param, face])
+
+    return sig, codegen
+
+
 exit_of_tet: Any = intrinsic(_exit_of_tet_intrinsic)
+exit_of_cell8: Any = intrinsic(_exit_of_cell8_intrinsic)
 exit_of_tet_planes: Any = intrinsic(_exit_of_tet_planes_intrinsic)

@@ -83,7 +83,7 @@ from bentray.engine.constants import (
     TINY_STEP_REL,
 )
 from bentray.engine.kernels import parabolic
-from bentray.engine.kernels.face_roots4 import exit_of_tet
+from bentray.engine.kernels.face_roots4 import exit_of_cell8, exit_of_tet
 from bentray.engine.kernels.lane_advance4 import advance4
 from bentray.engine.kernels.llvm_inline import njit_inline
 from bentray.engine.kernels.roots import NO_ROOT, face_exit_parameter
@@ -153,6 +153,21 @@ def _exit_search(rec, cell, k_faces, o_nb, g, p0, x, exclude, on_face_tol):
             param = r
             face = f
     return param, face
+
+
+@njit_inline
+def _exit_any(rec, k_faces, o_nb, cell, g, p0, x, exclude, on_face_tol):
+    """(parameter, face) of the exit from row ``cell``: a tetrahedron's four faces as one vector pass, cells of 5
+    to 8 faces as two (kernels/face_roots4.py), others face by face (_exit_search); the same bits in each."""
+    if k_faces == 4:
+        return exit_of_tet(
+            rec, cell, g[0], g[1], g[2], p0[0], p0[1], p0[2], x[0], x[1], x[2], exclude, on_face_tol, o_nb
+        )
+    if k_faces <= 8:
+        return exit_of_cell8(
+            rec, cell, g[0], g[1], g[2], p0[0], p0[1], p0[2], x[0], x[1], x[2], exclude, on_face_tol, o_nb, k_faces
+        )
+    return _exit_search(rec, cell, k_faces, o_nb, g, p0, x, exclude, on_face_tol)
 
 
 @nb.njit(**NJIT_FLAGS)
@@ -306,12 +321,7 @@ def _lane_step(rec, geo, planes, neighbours, c_ref, limits, fst, ist, lane, x, d
         gg = g0 * g0 + g1 * g1 + g2 * g2
         cell_size = rec[cell, o_s]
         on_face_tol = ON_FACE_REL * cell_size
-        if k_faces == 4:  # a tetrahedron: the four faces at once (kernels/face_roots4.py, the same bits)
-            param, face = exit_of_tet(
-                rec, cell, g0, g1, g2, p0[0], p0[1], p0[2], x[0], x[1], x[2], exclude, on_face_tol, o_nb
-            )
-        else:
-            param, face = _exit_search(rec, cell, k_faces, o_nb, g, p0, x, exclude, on_face_tol)
+        param, face = _exit_any(rec, k_faces, o_nb, cell, g, p0, x, exclude, on_face_tol)
         nxt = -1
         if face >= 0:
             nxt = int(rec[cell, o_nb + face])
@@ -450,12 +460,7 @@ def _step_start(rec, o_g, o_r, o_m, o_s, cell, x0, x1, x2, d0, d1, d2):
 def _step_exit(rec, k_faces, o_nb, cell, g, p0, x, entry, cell_size):
     """(parameter, face, next cell) of the exit from ``cell``, as _lane_step finds it (no slide pending: the
     entry face is the excluded one); with no exit (face -1) the next cell is read at face 0 and not used."""
-    if k_faces == 4:
-        param, face = exit_of_tet(
-            rec, cell, g[0], g[1], g[2], p0[0], p0[1], p0[2], x[0], x[1], x[2], entry, ON_FACE_REL * cell_size, o_nb
-        )
-    else:
-        param, face = _exit_search(rec, cell, k_faces, o_nb, g, p0, x, entry, ON_FACE_REL * cell_size)
+    param, face = _exit_any(rec, k_faces, o_nb, cell, g, p0, x, entry, ON_FACE_REL * cell_size)
     nxt = int(rec[cell, o_nb + max(face, 0)])
     return param, face, nxt
 

@@ -21,7 +21,7 @@ from hypothesis import strategies as st
 
 from bentray.engine.constants import CURVE_PARABOLIC, FACE_UNUSED
 from bentray.engine.kernels import curves
-from bentray.engine.kernels.face_roots4 import exit_of_tet, exit_of_tet_planes
+from bentray.engine.kernels.face_roots4 import exit_of_cell8, exit_of_tet, exit_of_tet_planes
 from bentray.engine.kernels.lean import _exit_search
 from bentray.engine.mesh.packed import record_width
 
@@ -205,3 +205,58 @@ def test_a_tet_by_hand(entry: int) -> None:
     param, face = _compare(rec, np.zeros((1, 3)), p0, x, np.array([entry]), np.array([1e-12]))
     assert face[0] == 3
     assert param[0] == pytest.approx(0.7, rel=1e-14)
+
+
+@nb.njit(cache=False)
+def _both8(rec, k_faces, g, p0, x, entry, tol, out_p, out_f):
+    """exit_of_cell8 (column 0) and the scalar loop (column 1) on rows of K-face records (4 < K <= 8)."""
+    o_nb = 4 * k_faces + 8
+    for i in range(rec.shape[0]):
+        pv, fv = exit_of_cell8(
+            rec, i, g[i, 0], g[i, 1], g[i, 2], p0[i, 0], p0[i, 1], p0[i, 2], x[i, 0], x[i, 1], x[i, 2], entry[i],
+            tol[i], o_nb, k_faces,
+        )  # fmt: skip
+        gi = (g[i, 0], g[i, 1], g[i, 2])
+        pi = (p0[i, 0], p0[i, 1], p0[i, 2])
+        xi = (x[i, 0], x[i, 1], x[i, 2])
+        ps, fs = _exit_search(rec, i, k_faces, o_nb, gi, pi, xi, entry[i], tol[i])
+        out_p[i, 0], out_p[i, 1] = pv, ps
+        out_f[i, 0], out_f[i, 1] = fv, fs
+
+
+@pytest.mark.parametrize("k_faces", [5, 6, 7, 8])
+def test_cells_of_five_to_eight_faces(k_faces: int) -> None:
+    """Two groups of four faces, the faces beyond K masked (their rows and slots hold the record's other fields,
+    here random numbers), the second group taken only where strictly smaller; random and special values, ties
+    between faces (equal planes), unused faces, every entry face."""
+    rng = np.random.default_rng(k_faces)
+    n = 20_000
+    width = record_width(k_faces)
+    o_nb = 4 * k_faces + 8
+    rec = rng.normal(size=(n, width))
+    m = rng.normal(size=(n, k_faces, 3))
+    m /= np.linalg.norm(m, axis=2)[:, :, None]
+    rec[:, : 4 * k_faces : 4], rec[:, 1 : 4 * k_faces : 4], rec[:, 2 : 4 * k_faces : 4] = (
+        m[..., 0],
+        m[..., 1],
+        m[..., 2],
+    )
+    rec[:, 3 : 4 * k_faces : 4] = rng.uniform(0.1, 2.0, size=(n, k_faces))
+    dup = rng.random(n) < 0.1  # a face repeated later: a tie the first must win
+    rec[dup, 4 * (k_faces - 1) : 4 * k_faces] = rec[dup, 0:4]
+    rec[:, o_nb : o_nb + k_faces] = np.arange(k_faces)
+    rec[:, o_nb : o_nb + k_faces][rng.random((n, k_faces)) < 0.1] = FACE_UNUSED
+    x = rng.normal(size=(n, 3)) * 0.3
+    p0 = rng.normal(size=(n, 3))
+    g = rng.normal(size=(n, 3)) * rng.choice([0.0, 1e-3, 1.0], size=(n, 1))
+    g[rng.random(n) < 0.3, :2] = 0.0
+    for arr in (rec[:, : 4 * k_faces], x, p0, g):
+        hit = rng.random(arr.shape) < 0.03
+        arr[hit] = rng.choice(SPECIAL, size=int(hit.sum()))
+    entry = rng.integers(-1, k_faces, size=n).astype(np.int64)
+    tol = rng.choice([0.0, 1e-9, 1e-3], size=n)
+    out_p = np.empty((n, 2))
+    out_f = np.empty((n, 2), dtype=np.int64)
+    _both8(np.ascontiguousarray(rec), k_faces, g, p0, x, entry, tol, out_p, out_f)
+    _assert_same(out_p, out_f, f"exit_of_cell8 K={k_faces}")
+    assert (out_f[:, 1] >= 4).any() and (out_f[:, 1] < 4).any() and (out_f[:, 1] == -1).any()
