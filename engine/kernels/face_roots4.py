@@ -125,6 +125,10 @@ def _tet_exit(
     return param, face
 
 
+def _ptr(context: Any, builder: Any, aty: Any, arr: Any, idx: list[Any]) -> Any:
+    return cgutils.get_item_pointer(context, builder, aty, arr, idx, wraparound=False, boundscheck=False)
+
+
 def _rows(builder: Any, row: Any) -> list[Any]:
     """The four <4 x double> face rows from a pointer to the first double of (mx, my, mz, h) x 4."""
     vptr = builder.bitcast(row, _V4.as_pointer())
@@ -154,11 +158,12 @@ def _exit_of_tet_intrinsic(typingctx, rec, cell, g0, g1, g2, p0, p1, p2, x0, x1,
 
 
 def _exit_of_tet_planes_intrinsic(typingctx, planes, neighbours, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol):  # noqa: ARG001
-    """The same search on one cell's planes (4, 4) float64 and neighbours (4,) int64 (C-contiguous; the generic
-    kernel's per-cell views), without the lean loop's skip changing anything (A <= 0, B <= 0 give +inf)."""
+    """The same search on one cell's planes (4, 4) float64 and neighbours (4,) int64 (the generic kernel's per-cell
+    views; any layout, C-contiguous planes read as four vector loads), without the lean loop's skip changing
+    anything (A <= 0, B <= 0 give +inf)."""
     ok_planes = isinstance(planes, types.Array) and planes.ndim == 2 and planes.dtype == types.float64
     ok_nb = isinstance(neighbours, types.Array) and neighbours.ndim == 1 and neighbours.dtype == types.int64
-    if not (ok_planes and ok_nb and planes.layout == "C" and neighbours.layout in ("C", "A")):
+    if not (ok_planes and ok_nb):
         return None
     sig = types.Tuple((types.float64, types.int64))(planes, neighbours, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol)
 
@@ -167,14 +172,25 @@ def _exit_of_tet_planes_intrinsic(typingctx, planes, neighbours, g0, g1, g2, p0,
         pl = context.make_array(pty)(context, builder, args[0])
         nbs = context.make_array(nty)(context, builder, args[1])
         zero = context.get_constant(types.intp, 0)
-        row = cgutils.get_item_pointer(context, builder, pty, pl, [zero, zero], wraparound=False, boundscheck=False)
+        if pty.layout == "C":  # the four rows are 16 consecutive doubles
+            faces = _rows(builder, _ptr(context, builder, pty, pl, [zero, zero]))
+        else:  # a strided view (a mesh built from slices): the same values, gathered one by one
+            faces = []
+            for f in range(4):
+                vec = ir.Constant(_V4, ir.Undefined)
+                for c in range(4):
+                    idx = [context.get_constant(types.intp, f), context.get_constant(types.intp, c)]
+                    vec = builder.insert_element(
+                        vec, builder.load(_ptr(context, builder, pty, pl, idx)), ir.Constant(ir.IntType(32), c)
+                    )
+                faces.append(vec)
         unused = ir.Constant(ir.VectorType(ir.IntType(1), 4), None)
         for f in range(4):
             idx = context.get_constant(types.intp, f)
             ptr = cgutils.get_item_pointer(context, builder, nty, nbs, [idx], wraparound=False, boundscheck=False)
             is_unused = builder.icmp_signed("==", builder.load(ptr), ir.Constant(_I64, FACE_UNUSED))
             unused = builder.insert_element(unused, is_unused, ir.Constant(ir.IntType(32), f))
-        param, face = _tet_exit(builder, _rows(builder, row), unused, list(args[2:11]), args[11], args[12])
+        param, face = _tet_exit(builder, faces, unused, list(args[2:11]), args[11], args[12])
         return context.make_tuple(builder, signature.return_type, [param, face])
 
     return sig, codegen

@@ -260,3 +260,26 @@ def test_cells_of_five_to_eight_faces(k_faces: int) -> None:
     _both8(np.ascontiguousarray(rec), k_faces, g, p0, x, entry, tol, out_p, out_f)
     _assert_same(out_p, out_f, f"exit_of_cell8 K={k_faces}")
     assert (out_f[:, 1] >= 4).any() and (out_f[:, 1] < 4).any() and (out_f[:, 1] == -1).any()
+
+
+def test_strided_planes_in_the_generic_form() -> None:
+    """A mesh built from slices gives the generic kernel strided per-cell views: exit_of_tet_planes gathers them
+    one by one and must still equal curves.find_exit."""
+    rng = np.random.default_rng(13)
+    n = 5_000
+    rec, verts = _records(n, rng)
+    wide = np.zeros((n, 4, 8))
+    wide[:, :, :4] = rec[:, :16].reshape(n, 4, 4)
+    planes = wide[:, :, :4]  # (n, 4, 4) with a row stride of 8 doubles: not C-contiguous
+    assert not planes.flags.c_contiguous
+    neighbours = np.ascontiguousarray(rec[:, O_NB : O_NB + K].astype(np.int64))
+    x = verts.mean(axis=1) + rng.normal(size=(n, 3)) * 0.05
+    p0 = rng.normal(size=(n, 3))
+    g = rng.normal(size=(n, 3))
+    entry = rng.integers(-1, 4, size=n).astype(np.int64)
+    tol = np.full(n, 1e-9)
+    out_p = np.empty((n, 2))
+    out_f = np.empty((n, 2), dtype=np.int64)
+    _both_generic(planes, neighbours, g, p0, x, entry, tol, out_p, out_f)
+    _assert_same(out_p, out_f, "exit_of_tet_planes, strided")
+    assert (out_f[:, 1] >= 0).mean() > 0.5
