@@ -129,6 +129,12 @@ def _ptr(context: Any, builder: Any, aty: Any, arr: Any, idx: list[Any]) -> Any:
     return cgutils.get_item_pointer(context, builder, aty, arr, idx, wraparound=False, boundscheck=False)
 
 
+def _record_row(context: Any, builder: Any, aryty: Any, arr: Any, cell: Any) -> Any:
+    """Pointer to the first double of row ``cell`` of the packed records ``arr`` (C-contiguous, 2-D)."""
+    ary = context.make_array(aryty)(context, builder, arr)
+    return _ptr(context, builder, aryty, ary, [cell, context.get_constant(types.intp, 0)])
+
+
 def _rows(builder: Any, row: Any) -> list[Any]:
     """The four <4 x double> face rows from a pointer to the first double of (mx, my, mz, h) x 4."""
     vptr = builder.bitcast(row, _V4.as_pointer())
@@ -143,12 +149,7 @@ def _exit_of_tet_intrinsic(typingctx, rec, cell, g0, g1, g2, p0, p1, p2, x0, x1,
     sig = types.Tuple((types.float64, types.int64))(rec, cell, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol, o_nb)
 
     def codegen(context, builder, signature, args):
-        aryty = signature.args[0]
-        ary = context.make_array(aryty)(context, builder, args[0])
-        zero = context.get_constant(types.intp, 0)
-        row = cgutils.get_item_pointer(
-            context, builder, aryty, ary, [args[1], zero], wraparound=False, boundscheck=False
-        )
+        row = _record_row(context, builder, signature.args[0], args[0], args[1])
         nbv = builder.load(builder.bitcast(builder.gep(row, [args[13]]), _V4.as_pointer()), align=8)
         unused = builder.fcmp_ordered("==", nbv, _const4([float(FACE_UNUSED)] * 4))
         param, face = _tet_exit(builder, _rows(builder, row), unused, list(args[2:11]), args[11], args[12])
@@ -208,12 +209,7 @@ def _exit_of_cell8_intrinsic(typingctx, rec, cell, g0, g1, g2, p0, p1, p2, x0, x
     )
 
     def codegen(context, builder, signature, args):
-        aryty = signature.args[0]
-        ary = context.make_array(aryty)(context, builder, args[0])
-        zero = context.get_constant(types.intp, 0)
-        row = cgutils.get_item_pointer(
-            context, builder, aryty, ary, [args[1], zero], wraparound=False, boundscheck=False
-        )
+        row = _record_row(context, builder, signature.args[0], args[0], args[1])
         nb_row = builder.gep(row, [args[13]])
         k_vec = _splat_i64(builder, args[14])
         results = []
