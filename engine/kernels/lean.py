@@ -527,7 +527,6 @@ def trace_block_lanes(packed, mesh, c_ref, limits, origins, directions, cells, o
     d = np.empty(3)
     xn = np.empty(3)
     dn = np.empty(3)
-    # per-lane stage values
     # the lanes' common-step values, stage to stage: position, new position and tangent (n_lanes, 3); lf columns
     # m0, g (3), p0 (3), g.p0, |g|^2, cell size, parameter, dt; li columns fast, cell, face, next cell
     lx = np.empty((n_lanes, 3))
