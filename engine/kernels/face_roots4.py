@@ -1,4 +1,4 @@
-"""The exit search of a tetrahedron in one pass over its four faces as 4-wide vectors (for the lean kernel).
+"""The exit search of a tetrahedron in one pass over its four faces as 4-wide vectors (lean and generic kernels).
 
 The lean traversal (kernels/lean.py) finds a cell's exit face face by face: per face the plane coefficients
 (A, B, C) of the parabolic curve (parabolic.plane_coefficients), a skip when A <= 0 and B <= 0 (no upward
@@ -23,8 +23,14 @@ four results in face order with the scalar loop's strict ``<``. Equivalence of t
 - the skip (A <= 0 and B <= 0), unused faces (neighbour FACE_UNUSED) and the entry face (C = 0, no
   on-face exit) are masks.
 
-tests/engine/test_face_roots4.py checks it against the scalar loop on random and adversarial inputs (zeros of
-either sign, nan, inf, subnormal and huge coefficients, points on faces).
+Also here: ``exit_of_cell8``, the same for cells of 5 to 8 faces in two passes of four (the faces past K masked;
+the second pass wins only where strictly smaller, the loop's first minimum), and ``exit_of_tet_planes``, the
+tetrahedron's search on the generic kernel's per-cell (4, 4) planes and (4,) neighbours (traverse.trace_slots,
+parabolic curve), which has no skip: a face with A <= 0 and B <= 0 gives +inf there too.
+
+tests/engine/test_face_roots4.py checks all three against the scalar loops (lean._exit_search, curves.find_exit)
+on random and adversarial inputs (zeros of either sign, nan, inf, subnormal and huge coefficients, points on
+faces, ties, unused faces, strided planes).
 """
 
 from __future__ import annotations
