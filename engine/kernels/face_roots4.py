@@ -38,37 +38,13 @@ from __future__ import annotations
 from typing import Any
 
 from llvmlite import ir  # type: ignore[import-untyped]
-from numba.core import cgutils, types
+from numba.core import types
 from numba.core.extending import intrinsic
 
 from bentray.engine.constants import FACE_UNUSED
+from bentray.engine.kernels.llvm_vec import I32, I64, V4, D, const4, item_ptr, shuffle, splat, splat_i64, vsqrt
 
 __all__ = ["exit_of_cell8", "exit_of_tet", "exit_of_tet_planes"]
-
-_V4 = ir.VectorType(ir.DoubleType(), 4)
-_I64 = ir.IntType(64)
-
-
-def _splat(builder: Any, value: Any) -> Any:
-    """A <4 x double> with every lane ``value``."""
-    vec = ir.Constant(_V4, ir.Undefined)
-    vec = builder.insert_element(vec, value, ir.Constant(ir.IntType(32), 0))
-    return builder.shuffle_vector(vec, vec, ir.Constant(ir.VectorType(ir.IntType(32), 4), [0, 0, 0, 0]))
-
-
-def _const4(values: list[float]) -> Any:
-    return ir.Constant(_V4, [ir.Constant(ir.DoubleType(), float(v)) for v in values])
-
-
-def _shuffle(builder: Any, a: Any, b: Any, mask: list[int]) -> Any:
-    return builder.shuffle_vector(a, b, ir.Constant(ir.VectorType(ir.IntType(32), 4), mask))
-
-
-def _splat_i64(builder: Any, value: Any) -> Any:
-    """A <4 x i64> with every lane ``value``."""
-    vty = ir.VectorType(_I64, 4)
-    vec = builder.insert_element(ir.Constant(vty, ir.Undefined), value, ir.Constant(ir.IntType(32), 0))
-    return builder.shuffle_vector(vec, vec, ir.Constant(ir.VectorType(ir.IntType(32), 4), [0, 0, 0, 0]))
 
 
 def _tet_exit(
@@ -78,39 +54,38 @@ def _tet_exit(
     scalars, the nine doubles g0 g1 g2 p0 p1 p2 x0 x1 x2; entry (i64) and tol (double); base, the index of the
     first of the four faces. Returns the IR values (parameter double, face i64; -1 and +inf: no exit)."""
     # transpose the four (mx, my, mz, h) rows into per-quantity vectors over the faces
-    t0 = _shuffle(builder, faces[0], faces[1], [0, 4, 2, 6])  # mx0 mx1 mz0 mz1
-    t1 = _shuffle(builder, faces[0], faces[1], [1, 5, 3, 7])  # my0 my1 h0 h1
-    t2 = _shuffle(builder, faces[2], faces[3], [0, 4, 2, 6])
-    t3 = _shuffle(builder, faces[2], faces[3], [1, 5, 3, 7])
-    mx = _shuffle(builder, t0, t2, [0, 1, 4, 5])
-    mz = _shuffle(builder, t0, t2, [2, 3, 6, 7])
-    my = _shuffle(builder, t1, t3, [0, 1, 4, 5])
-    hh = _shuffle(builder, t1, t3, [2, 3, 6, 7])
-    g0v, g1v, g2v, p0v, p1v, p2v, x0v, x1v, x2v = (_splat(builder, a) for a in scalars)
+    t0 = shuffle(builder, faces[0], faces[1], [0, 4, 2, 6])  # mx0 mx1 mz0 mz1
+    t1 = shuffle(builder, faces[0], faces[1], [1, 5, 3, 7])  # my0 my1 h0 h1
+    t2 = shuffle(builder, faces[2], faces[3], [0, 4, 2, 6])
+    t3 = shuffle(builder, faces[2], faces[3], [1, 5, 3, 7])
+    mx = shuffle(builder, t0, t2, [0, 1, 4, 5])
+    mz = shuffle(builder, t0, t2, [2, 3, 6, 7])
+    my = shuffle(builder, t1, t3, [0, 1, 4, 5])
+    hh = shuffle(builder, t1, t3, [2, 3, 6, 7])
+    g0v, g1v, g2v, p0v, p1v, p2v, x0v, x1v, x2v = (splat(builder, a) for a in scalars)
     fmul, fadd, fsub = builder.fmul, builder.fadd, builder.fsub
     # parabolic.plane_coefficients: a = 0.25 (mx g0 + my g1 + mz g2), b = mx p0 + my p1 + mz p2,
     # c = mx x0 + my x1 + mz x2 - h, each summed left to right as there
-    a = fmul(_const4([0.25] * 4), fadd(fadd(fmul(mx, g0v), fmul(my, g1v)), fmul(mz, g2v)))
+    a = fmul(const4(0.25), fadd(fadd(fmul(mx, g0v), fmul(my, g1v)), fmul(mz, g2v)))
     b = fadd(fadd(fmul(mx, p0v), fmul(my, p1v)), fmul(mz, p2v))
     c = fsub(fadd(fadd(fmul(mx, x0v), fmul(my, x1v)), fmul(mz, x2v)), hh)
-    zeros = _const4([0.0] * 4)
-    lane = ir.Constant(ir.VectorType(_I64, 4), [ir.Constant(_I64, base + f) for f in range(4)])
-    is_entry = builder.icmp_signed("==", lane, _splat_i64(builder, entry))
+    zeros = const4(0.0)
+    lane = ir.Constant(ir.VectorType(I64, 4), [ir.Constant(I64, base + f) for f in range(4)])
+    is_entry = builder.icmp_signed("==", lane, splat_i64(builder, entry))
     c_eff = builder.select(is_entry, zeros, c)  # the entry face: C is 0 there
     # roots.upcrossing_root in its general form (module docstring: the linear shortcut gives the same)
-    disc = fsub(fmul(b, b), fmul(fmul(_const4([4.0] * 4), a), c_eff))
+    disc = fsub(fmul(b, b), fmul(fmul(const4(4.0), a), c_eff))
     ok = builder.fcmp_ordered(">", disc, zeros)  # false for nan, as 'disc <= 0' is then false but the root nan
-    sqrt_fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(_V4, [_V4]), "llvm.sqrt.v4f64")
-    sq = builder.call(sqrt_fn, [builder.select(ok, disc, zeros)])
+    sq = vsqrt(builder, builder.select(ok, disc, zeros))
     pos = builder.fcmp_ordered(">=", b, zeros)
-    half = _const4([-0.5] * 4)
+    half = const4(-0.5)
     q_pos = fmul(half, fadd(b, sq))
     q_neg = fmul(half, fsub(b, sq))
     r = builder.fdiv(builder.select(pos, c_eff, q_neg), builder.select(pos, q_pos, a))
-    inf = _const4([float("inf")] * 4)
+    inf = const4(float("inf"))
     valid = builder.and_(ok, builder.and_(builder.fcmp_ordered(">", r, zeros), builder.fcmp_ordered("<", r, inf)))
     # roots.face_exit_parameter's on-face exit: not the entry face, c > -tol, moving out (b > 0, or b == 0, a > 0)
-    neg_tol = _splat(builder, builder.fsub(ir.Constant(ir.DoubleType(), -0.0), tol))  # -tol exactly
+    neg_tol = splat(builder, builder.fsub(ir.Constant(D, -0.0), tol))  # -tol exactly
     out_going = builder.or_(
         builder.fcmp_ordered(">", b, zeros),
         builder.and_(builder.fcmp_ordered("==", b, zeros), builder.fcmp_ordered(">", a, zeros)),
@@ -121,30 +96,26 @@ def _tet_exit(
     skip = builder.and_(builder.fcmp_ordered("<=", a, zeros), builder.fcmp_ordered("<=", b, zeros))
     res = builder.select(builder.or_(skip, unused), inf, res)
     # the loop's reduction: faces in order, strict '<' (the first face wins a tie)
-    param = ir.Constant(ir.DoubleType(), float("inf"))
-    face = ir.Constant(_I64, -1)
+    param = ir.Constant(D, float("inf"))
+    face = ir.Constant(I64, -1)
     for f in range(4):
-        v = builder.extract_element(res, ir.Constant(ir.IntType(32), f))
+        v = builder.extract_element(res, ir.Constant(I32, f))
         better = builder.fcmp_ordered("<", v, param)
         param = builder.select(better, v, param)
-        face = builder.select(better, ir.Constant(_I64, base + f), face)
+        face = builder.select(better, ir.Constant(I64, base + f), face)
     return param, face
-
-
-def _ptr(context: Any, builder: Any, aty: Any, arr: Any, idx: list[Any]) -> Any:
-    return cgutils.get_item_pointer(context, builder, aty, arr, idx, wraparound=False, boundscheck=False)
 
 
 def _record_row(context: Any, builder: Any, aryty: Any, arr: Any, cell: Any) -> Any:
     """Pointer to the first double of row ``cell`` of the packed records ``arr`` (C-contiguous, 2-D)."""
     ary = context.make_array(aryty)(context, builder, arr)
-    return _ptr(context, builder, aryty, ary, [cell, context.get_constant(types.intp, 0)])
+    return item_ptr(context, builder, aryty, ary, [cell, context.get_constant(types.intp, 0)])
 
 
 def _rows(builder: Any, row: Any) -> list[Any]:
     """The four <4 x double> face rows from a pointer to the first double of (mx, my, mz, h) x 4."""
-    vptr = builder.bitcast(row, _V4.as_pointer())
-    return [builder.load(builder.gep(vptr, [ir.Constant(_I64, f)]), align=8) for f in range(4)]
+    vptr = builder.bitcast(row, V4.as_pointer())
+    return [builder.load(builder.gep(vptr, [ir.Constant(I64, f)]), align=8) for f in range(4)]
 
 
 def _exit_of_tet_intrinsic(typingctx, rec, cell, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol, o_nb):  # noqa: ARG001
@@ -156,8 +127,8 @@ def _exit_of_tet_intrinsic(typingctx, rec, cell, g0, g1, g2, p0, p1, p2, x0, x1,
 
     def codegen(context, builder, signature, args):
         row = _record_row(context, builder, signature.args[0], args[0], args[1])
-        nbv = builder.load(builder.bitcast(builder.gep(row, [args[13]]), _V4.as_pointer()), align=8)
-        unused = builder.fcmp_ordered("==", nbv, _const4([float(FACE_UNUSED)] * 4))
+        nbv = builder.load(builder.bitcast(builder.gep(row, [args[13]]), V4.as_pointer()), align=8)
+        unused = builder.fcmp_ordered("==", nbv, const4(float(FACE_UNUSED)))
         param, face = _tet_exit(builder, _rows(builder, row), unused, list(args[2:11]), args[11], args[12])
         return context.make_tuple(builder, signature.return_type, [param, face])
 
@@ -180,23 +151,23 @@ def _exit_of_tet_planes_intrinsic(typingctx, planes, neighbours, g0, g1, g2, p0,
         nbs = context.make_array(nty)(context, builder, args[1])
         zero = context.get_constant(types.intp, 0)
         if pty.layout == "C":  # the four rows are 16 consecutive doubles
-            faces = _rows(builder, _ptr(context, builder, pty, pl, [zero, zero]))
+            faces = _rows(builder, item_ptr(context, builder, pty, pl, [zero, zero]))
         else:  # a strided view (a mesh built from slices): the same values, gathered one by one
             faces = []
             for f in range(4):
-                vec = ir.Constant(_V4, ir.Undefined)
+                vec = ir.Constant(V4, ir.Undefined)
                 for c in range(4):
                     idx = [context.get_constant(types.intp, f), context.get_constant(types.intp, c)]
                     vec = builder.insert_element(
-                        vec, builder.load(_ptr(context, builder, pty, pl, idx)), ir.Constant(ir.IntType(32), c)
+                        vec, builder.load(item_ptr(context, builder, pty, pl, idx)), ir.Constant(I32, c)
                     )
                 faces.append(vec)
         unused = ir.Constant(ir.VectorType(ir.IntType(1), 4), None)
         for f in range(4):
             idx = context.get_constant(types.intp, f)
-            ptr = cgutils.get_item_pointer(context, builder, nty, nbs, [idx], wraparound=False, boundscheck=False)
-            is_unused = builder.icmp_signed("==", builder.load(ptr), ir.Constant(_I64, FACE_UNUSED))
-            unused = builder.insert_element(unused, is_unused, ir.Constant(ir.IntType(32), f))
+            ptr = item_ptr(context, builder, nty, nbs, [idx])
+            is_unused = builder.icmp_signed("==", builder.load(ptr), ir.Constant(I64, FACE_UNUSED))
+            unused = builder.insert_element(unused, is_unused, ir.Constant(I32, f))
         param, face = _tet_exit(builder, faces, unused, list(args[2:11]), args[11], args[12])
         return context.make_tuple(builder, signature.return_type, [param, face])
 
@@ -217,18 +188,16 @@ def _exit_of_cell8_intrinsic(typingctx, rec, cell, g0, g1, g2, p0, p1, p2, x0, x
     def codegen(context, builder, signature, args):
         row = _record_row(context, builder, signature.args[0], args[0], args[1])
         nb_row = builder.gep(row, [args[13]])
-        k_vec = _splat_i64(builder, args[14])
+        k_vec = splat_i64(builder, args[14])
         results = []
         for base in (0, 4):
-            nbv = builder.load(
-                builder.bitcast(builder.gep(nb_row, [ir.Constant(_I64, base)]), _V4.as_pointer()), align=8
-            )
-            idx = ir.Constant(ir.VectorType(_I64, 4), [ir.Constant(_I64, base + f) for f in range(4)])
+            nbv = builder.load(builder.bitcast(builder.gep(nb_row, [ir.Constant(I64, base)]), V4.as_pointer()), align=8)
+            idx = ir.Constant(ir.VectorType(I64, 4), [ir.Constant(I64, base + f) for f in range(4)])
             unused = builder.or_(
-                builder.fcmp_ordered("==", nbv, _const4([float(FACE_UNUSED)] * 4)),
+                builder.fcmp_ordered("==", nbv, const4(float(FACE_UNUSED))),
                 builder.icmp_signed(">=", idx, k_vec),
             )
-            faces = _rows(builder, builder.gep(row, [ir.Constant(_I64, 4 * base)]))
+            faces = _rows(builder, builder.gep(row, [ir.Constant(I64, 4 * base)]))
             results.append(_tet_exit(builder, faces, unused, list(args[2:11]), args[11], args[12], base))
         (pa, fa), (pb, fb) = results
         better = builder.fcmp_ordered("<", pb, pa)

@@ -28,30 +28,13 @@ from __future__ import annotations
 from typing import Any
 
 from llvmlite import ir  # type: ignore[import-untyped]
-from numba.core import cgutils, types
+from numba.core import types
 from numba.core.extending import intrinsic
 
 from bentray.engine.kernels import parabolic
+from bentray.engine.kernels.llvm_vec import I32, I64, V4, const4, item_ptr, splat, vsqrt
 
 __all__ = ["advance4"]
-
-_D = ir.DoubleType()
-_V4 = ir.VectorType(_D, 4)
-_I32 = ir.IntType(32)
-_I64 = ir.IntType(64)
-
-
-def _c4(value: float) -> Any:
-    return ir.Constant(_V4, [ir.Constant(_D, float(value))] * 4)
-
-
-def _splat(builder: Any, value: Any) -> Any:
-    vec = builder.insert_element(ir.Constant(_V4, ir.Undefined), value, ir.Constant(_I32, 0))
-    return builder.shuffle_vector(vec, vec, ir.Constant(ir.VectorType(_I32, 4), [0, 0, 0, 0]))
-
-
-def _ptr(context: Any, builder: Any, aty: Any, arr: Any, idx: list[Any]) -> Any:
-    return cgutils.get_item_pointer(context, builder, aty, arr, idx, wraparound=False, boundscheck=False)
 
 
 def _advance4_intrinsic(typingctx, lf, lx, lxn, ldn, lds, k0, c_ref):  # noqa: ARG001
@@ -69,28 +52,28 @@ def _advance4_intrinsic(typingctx, lf, lx, lxn, ldn, lds, k0, c_ref):  # noqa: A
         arrs = [context.make_array(tys[i])(context, builder, args[i]) for i in range(5)]
         a_lf, a_lx, a_lxn, a_ldn, a_lds = arrs
         k0v = args[5]
-        rows = [builder.add(k0v, ir.Constant(_I64, j)) for j in range(4)]
+        rows = [builder.add(k0v, ir.Constant(I64, j)) for j in range(4)]
 
         def const_idx(v: int) -> Any:
             return context.get_constant(types.intp, v)
 
         def gather(aty: Any, arr: Any, col: int) -> Any:
-            vec = ir.Constant(_V4, ir.Undefined)
+            vec = ir.Constant(V4, ir.Undefined)
             for j in range(4):
-                val = builder.load(_ptr(context, builder, aty, arr, [rows[j], const_idx(col)]))
-                vec = builder.insert_element(vec, val, ir.Constant(_I32, j))
+                val = builder.load(item_ptr(context, builder, aty, arr, [rows[j], const_idx(col)]))
+                vec = builder.insert_element(vec, val, ir.Constant(I32, j))
             return vec
 
         def scatter(aty: Any, arr: Any, col: int | None, vec: Any) -> None:
             for j in range(4):
                 idx = [rows[j]] if col is None else [rows[j], const_idx(col)]
-                builder.store(builder.extract_element(vec, ir.Constant(_I32, j)), _ptr(context, builder, aty, arr, idx))
+                lane_value = builder.extract_element(vec, ir.Constant(I32, j))
+                builder.store(lane_value, item_ptr(context, builder, aty, arr, idx))
 
         fmul, fadd, fsub, fdiv = builder.fmul, builder.fadd, builder.fsub, builder.fdiv
-        sqrt_fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(_V4, [_V4]), "llvm.sqrt.v4f64")
 
         def sqrt(v: Any) -> Any:
-            return builder.call(sqrt_fn, [v])
+            return vsqrt(builder, v)
 
         m0 = gather(tys[0], a_lf, 0)
         g = [gather(tys[0], a_lf, 1 + i) for i in range(3)]
@@ -100,13 +83,13 @@ def _advance4_intrinsic(typingctx, lf, lx, lxn, ldn, lds, k0, c_ref):  # noqa: A
         sigma = gather(tys[0], a_lf, 10)
         x0 = [gather(tys[1], a_lx, i) for i in range(3)]
         # parabolic.travel_time: sigma * (n0sq + sigma * (0.5 * gp0 + sigma * gg / 12.0)) / c_ref
-        inner = fadd(fmul(_c4(0.5), gp0), fdiv(fmul(sigma, gg), _c4(12.0)))
-        dt = fdiv(fmul(sigma, fadd(m0, fmul(sigma, inner))), _splat(builder, args[6]))
+        inner = fadd(fmul(const4(0.5), gp0), fdiv(fmul(sigma, gg), const4(12.0)))
+        dt = fdiv(fmul(sigma, fadd(m0, fmul(sigma, inner))), splat(builder, args[6]))
         scatter(tys[0], a_lf, 11, dt)
         # parabolic.state_at: p = p0 + 0.5 g sigma, x = x0 + sigma (p0 + 0.25 g sigma), T = p / |p|
-        p = [fadd(p0[i], fmul(fmul(_c4(0.5), g[i]), sigma)) for i in range(3)]
+        p = [fadd(p0[i], fmul(fmul(const4(0.5), g[i]), sigma)) for i in range(3)]
         for i in range(3):
-            xn = fadd(x0[i], fmul(sigma, fadd(p0[i], fmul(fmul(_c4(0.25), g[i]), sigma))))
+            xn = fadd(x0[i], fmul(sigma, fadd(p0[i], fmul(fmul(const4(0.25), g[i]), sigma))))
             scatter(tys[2], a_lxn, i, xn)
         norm = sqrt(fadd(fadd(fmul(p[0], p[0]), fmul(p[1], p[1])), fmul(p[2], p[2])))
         for i in range(3):
@@ -114,26 +97,26 @@ def _advance4_intrinsic(typingctx, lf, lx, lxn, ldn, lds, k0, c_ref):  # noqa: A
 
         # parabolic.arc_length, its 2- and 3-point rules
         def speed(u: Any) -> Any:
-            q = [fadd(p0[i], fmul(fmul(_c4(0.5), g[i]), u)) for i in range(3)]
+            q = [fadd(p0[i], fmul(fmul(const4(0.5), g[i]), u)) for i in range(3)]
             return sqrt(fadd(fadd(fmul(q[0], q[0]), fmul(q[1], q[1])), fmul(q[2], q[2])))
 
         mm = fadd(fadd(fmul(p0[0], p0[0]), fmul(p0[1], p0[1])), fmul(p0[2], p0[2]))
         ggs = fadd(fadd(fmul(g[0], g[0]), fmul(g[1], g[1])), fmul(g[2], g[2]))
-        q = fmul(fmul(fmul(_c4(0.0625), ggs), sigma), sigma)
-        h = fmul(_c4(0.5), sigma)
-        r2 = fmul(_c4(parabolic.GL2_T), h)
+        q = fmul(fmul(fmul(const4(0.0625), ggs), sigma), sigma)
+        h = fmul(const4(0.5), sigma)
+        r2 = fmul(const4(parabolic.GL2_T), h)
         a2 = fmul(h, fadd(speed(fsub(h, r2)), speed(fadd(h, r2))))
-        r3 = fmul(_c4(parabolic.GL3_T), h)
-        outer3 = fmul(_c4(parabolic.GL3_W1), fadd(speed(fsub(h, r3)), speed(fadd(h, r3))))
-        a3 = fmul(h, fadd(outer3, fmul(_c4(parabolic.GL3_W0), speed(h))))
-        two = builder.fcmp_ordered("<=", q, fmul(_c4(parabolic.ARC_Q2), mm))
-        three = builder.fcmp_ordered("<=", q, fmul(_c4(parabolic.ARC_Q3), mm))
+        r3 = fmul(const4(parabolic.GL3_T), h)
+        outer3 = fmul(const4(parabolic.GL3_W1), fadd(speed(fsub(h, r3)), speed(fadd(h, r3))))
+        a3 = fmul(h, fadd(outer3, fmul(const4(parabolic.GL3_W0), speed(h))))
+        two = builder.fcmp_ordered("<=", q, fmul(const4(parabolic.ARC_Q2), mm))
+        three = builder.fcmp_ordered("<=", q, fmul(const4(parabolic.ARC_Q3), mm))
         scatter(tys[4], a_lds, None, builder.select(two, a2, a3))
         rare = builder.not_(builder.or_(two, three))
-        mask = ir.Constant(_I64, 0)
+        mask = ir.Constant(I64, 0)
         for j in range(4):
-            bit = builder.zext(builder.extract_element(rare, ir.Constant(_I32, j)), _I64)
-            mask = builder.or_(mask, builder.shl(bit, ir.Constant(_I64, j)))
+            bit = builder.zext(builder.extract_element(rare, ir.Constant(I32, j)), I64)
+            mask = builder.or_(mask, builder.shl(bit, ir.Constant(I64, j)))
         return mask
 
     return sig, codegen

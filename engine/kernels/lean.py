@@ -266,6 +266,27 @@ def _lane_take(lane, next_ray, hi, rays_in, rays_out, fst, ist):
     return next_ray
 
 
+@njit_inline
+def _step_start(rec, o_g, o_r, o_m, o_s, cell, x0, x1, x2, d0, d1, d2):
+    """A step's start in ``cell`` at x = (x0, x1, x2) with unit tangent (d0, d1, d2): (m0 = n^2, g = grad n^2,
+    p0 = n T, g.p0, |g|^2, the cell's size), for the common step and _lane_step alike (n is nan where m0 < 0:
+    both check m0 before using anything else)."""
+    m0 = (
+        rec[cell, o_m]
+        + rec[cell, o_g] * (x0 - rec[cell, o_r])
+        + rec[cell, o_g + 1] * (x1 - rec[cell, o_r + 1])
+        + rec[cell, o_g + 2] * (x2 - rec[cell, o_r + 2])
+    )
+    g0 = rec[cell, o_g]
+    g1 = rec[cell, o_g + 1]
+    g2 = rec[cell, o_g + 2]
+    n0 = math.sqrt(m0)
+    p0 = (n0 * d0, n0 * d1, n0 * d2)
+    gp0 = g0 * p0[0] + g1 * p0[1] + g2 * p0[2]
+    gg = g0 * g0 + g1 * g1 + g2 * g2
+    return m0, (g0, g1, g2), p0, gp0, gg, rec[cell, o_s]
+
+
 @nb.njit(**NJIT_FLAGS)
 def _lane_step(rec, geo, planes, neighbours, c_ref, limits, fst, ist, lane, x, d, xn, dn):
     """One whole step of the walk for ``lane`` (its state rows fst[lane], ist[lane], updated; the status in
@@ -297,17 +318,10 @@ def _lane_step(rec, geo, planes, neighbours, c_ref, limits, fst, ist, lane, x, d
             status = STATUS_STEP_LIMIT
             break
         steps += 1
-        m0 = (
-            rec[cell, o_m]
-            + rec[cell, o_g] * (x[0] - rec[cell, o_r])
-            + rec[cell, o_g + 1] * (x[1] - rec[cell, o_r + 1])
-            + rec[cell, o_g + 2] * (x[2] - rec[cell, o_r + 2])
-        )
-        g0 = rec[cell, o_g]
-        g1 = rec[cell, o_g + 1]
-        g2 = rec[cell, o_g + 2]
+        m0, g, p0, gp0, gg, cell_size = _step_start(rec, o_g, o_r, o_m, o_s, cell, x[0], x[1], x[2], d[0], d[1], d[2])
         exclude = entry
-        if slide_face >= 0:
+        if slide_face >= 0:  # the mean gradient of the two cells, less its normal part (g.p0 and |g|^2 again)
+            g0, g1, g2 = g
             nb_cell = int(rec[cell, o_nb + slide_face])
             if nb_cell >= 0:
                 g0 = 0.5 * (g0 + rec[nb_cell, o_g])
@@ -320,15 +334,12 @@ def _lane_step(rec, geo, planes, neighbours, c_ref, limits, fst, ist, lane, x, d
             g2 = g2 - gm * rec[cell, pf + 2]
             exclude = slide_face
             slide_face = -1
+            g = (g0, g1, g2)
+            gp0 = g0 * p0[0] + g1 * p0[1] + g2 * p0[2]
+            gg = g0 * g0 + g1 * g1 + g2 * g2
         if not (m0 > 0.0) or not math.isfinite(m0):
             status = STATUS_LOST
             break
-        n0 = math.sqrt(m0)
-        p0 = (n0 * d[0], n0 * d[1], n0 * d[2])
-        g = (g0, g1, g2)
-        gp0 = g0 * p0[0] + g1 * p0[1] + g2 * p0[2]
-        gg = g0 * g0 + g1 * g1 + g2 * g2
-        cell_size = rec[cell, o_s]
         on_face_tol = ON_FACE_REL * cell_size
         param, face = _exit_any(rec, k_faces, o_nb, cell, g, p0, x, exclude, on_face_tol)
         nxt = -1
@@ -442,27 +453,6 @@ def _lane_step(rec, geo, planes, neighbours, c_ref, limits, fst, ist, lane, x, d
     ist[lane, _I_PP] = pp_run
     ist[lane, _I_STEPS] = steps
     ist[lane, _I_STATUS] = status
-
-
-@njit_inline
-def _step_start(rec, o_g, o_r, o_m, o_s, cell, x0, x1, x2, d0, d1, d2):
-    """A step's start in ``cell`` at x = (x0, x1, x2) with unit tangent (d0, d1, d2): (m0 = n^2, g = grad n^2,
-    p0 = n T, g.p0, |g|^2, the cell's size), by _lane_step's expressions (n is nan where m0 < 0: the common
-    step's checks then send the lane to _lane_step)."""
-    m0 = (
-        rec[cell, o_m]
-        + rec[cell, o_g] * (x0 - rec[cell, o_r])
-        + rec[cell, o_g + 1] * (x1 - rec[cell, o_r + 1])
-        + rec[cell, o_g + 2] * (x2 - rec[cell, o_r + 2])
-    )
-    g0 = rec[cell, o_g]
-    g1 = rec[cell, o_g + 1]
-    g2 = rec[cell, o_g + 2]
-    n0 = math.sqrt(m0)
-    p0 = (n0 * d0, n0 * d1, n0 * d2)
-    gp0 = g0 * p0[0] + g1 * p0[1] + g2 * p0[2]
-    gg = g0 * g0 + g1 * g1 + g2 * g2
-    return m0, (g0, g1, g2), p0, gp0, gg, rec[cell, o_s]
 
 
 @njit_inline
