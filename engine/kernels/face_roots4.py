@@ -44,7 +44,7 @@ from numba.core.extending import intrinsic
 from bentray.engine.constants import FACE_UNUSED
 from bentray.engine.kernels.llvm_vec import I32, I64, V4, D, const4, item_ptr, shuffle, splat, splat_i64, vsqrt
 
-__all__ = ["exit_of_cell8", "exit_of_tet", "exit_of_tet_planes"]
+__all__ = ["exit_of_cell8", "exit_of_cell_planes", "exit_of_tet", "exit_of_tet_planes"]
 
 
 def _tet_exit(
@@ -135,13 +135,55 @@ def _exit_of_tet_intrinsic(typingctx, rec, cell, g0, g1, g2, p0, p1, p2, x0, x1,
     return sig, codegen
 
 
-def _exit_of_tet_planes_intrinsic(typingctx, planes, neighbours, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol):  # noqa: ARG001
-    """The same search on one cell's planes (4, 4) float64 and neighbours (4,) int64 (the generic kernel's per-cell
-    views; any layout, C-contiguous planes read as four vector loads), without the lean loop's skip changing
-    anything (A <= 0, B <= 0 give +inf)."""
+def _plane_row(context: Any, builder: Any, pty: Any, pl: Any, row: Any) -> Any:
+    """Row ``row`` (an intp IR value) of a cell's planes (K, 4) float64 as one <4 x double>: one vector load
+    when the array is C-contiguous, else (a strided view, as from a mesh built from slices) its four values
+    gathered one by one."""
+    zero = context.get_constant(types.intp, 0)
+    if pty.layout == "C":  # the row's four doubles are consecutive
+        ptr = item_ptr(context, builder, pty, pl, [row, zero])
+        return builder.load(builder.bitcast(ptr, V4.as_pointer()), align=8)
+    vec = ir.Constant(V4, ir.Undefined)
+    for c in range(4):
+        ptr = item_ptr(context, builder, pty, pl, [row, context.get_constant(types.intp, c)])
+        vec = builder.insert_element(vec, builder.load(ptr), ir.Constant(I32, c))
+    return vec
+
+
+def _planes_group(
+    context: Any, builder: Any, pty: Any, pl: Any, nty: Any, nbs: Any, base: int, k_faces: Any
+) -> tuple[list[Any], Any]:
+    """Faces base..base+3 of a cell's planes and neighbours: their four rows and the <4 x i1> mask of faces to
+    leave out (neighbour FACE_UNUSED, or index >= k_faces). Rows past the cell's K faces are read at index K - 1
+    instead (inside the view; masked), so nothing beyond the cell is touched."""
+    rows = []
+    unused = ir.Constant(ir.VectorType(ir.IntType(1), 4), None)
+    last = builder.sub(k_faces, ir.Constant(k_faces.type, 1))
+    for f in range(4):
+        j = ir.Constant(k_faces.type, base + f)
+        past = builder.icmp_signed(">=", j, k_faces)
+        idx = builder.select(past, last, j) if base else j
+        rows.append(_plane_row(context, builder, pty, pl, idx))
+        nb_f = builder.load(item_ptr(context, builder, nty, nbs, [idx]))
+        is_unused = builder.icmp_signed("==", nb_f, ir.Constant(I64, FACE_UNUSED))
+        if base:
+            is_unused = builder.or_(is_unused, past)
+        unused = builder.insert_element(unused, is_unused, ir.Constant(I32, f))
+    return rows, unused
+
+
+def _planes_args_ok(planes: Any, neighbours: Any) -> bool:
+    """A cell's planes (K, 4) float64 and neighbours (K,) int64, any layout."""
     ok_planes = isinstance(planes, types.Array) and planes.ndim == 2 and planes.dtype == types.float64
     ok_nb = isinstance(neighbours, types.Array) and neighbours.ndim == 1 and neighbours.dtype == types.int64
-    if not (ok_planes and ok_nb):
+    return ok_planes and ok_nb
+
+
+def _exit_of_tet_planes_intrinsic(typingctx, planes, neighbours, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol):  # noqa: ARG001
+    """The same search on one cell's planes (4, 4) float64 and neighbours (4,) int64 (the generic kernel's per-cell
+    views; any layout, C-contiguous rows read as vector loads), without the lean loop's skip changing
+    anything (A <= 0, B <= 0 give +inf)."""
+    if not _planes_args_ok(planes, neighbours):
         return None
     sig = types.Tuple((types.float64, types.int64))(planes, neighbours, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol)
 
@@ -149,26 +191,36 @@ def _exit_of_tet_planes_intrinsic(typingctx, planes, neighbours, g0, g1, g2, p0,
         pty, nty = signature.args[0], signature.args[1]
         pl = context.make_array(pty)(context, builder, args[0])
         nbs = context.make_array(nty)(context, builder, args[1])
-        zero = context.get_constant(types.intp, 0)
-        if pty.layout == "C":  # the four rows are 16 consecutive doubles
-            faces = _rows(builder, item_ptr(context, builder, pty, pl, [zero, zero]))
-        else:  # a strided view (a mesh built from slices): the same values, gathered one by one
-            faces = []
-            for f in range(4):
-                vec = ir.Constant(V4, ir.Undefined)
-                for c in range(4):
-                    idx = [context.get_constant(types.intp, f), context.get_constant(types.intp, c)]
-                    vec = builder.insert_element(
-                        vec, builder.load(item_ptr(context, builder, pty, pl, idx)), ir.Constant(I32, c)
-                    )
-                faces.append(vec)
-        unused = ir.Constant(ir.VectorType(ir.IntType(1), 4), None)
-        for f in range(4):
-            idx = context.get_constant(types.intp, f)
-            ptr = item_ptr(context, builder, nty, nbs, [idx])
-            is_unused = builder.icmp_signed("==", builder.load(ptr), ir.Constant(I64, FACE_UNUSED))
-            unused = builder.insert_element(unused, is_unused, ir.Constant(I32, f))
+        four = context.get_constant(types.intp, 4)
+        faces, unused = _planes_group(context, builder, pty, pl, nty, nbs, 0, four)
         param, face = _tet_exit(builder, faces, unused, list(args[2:11]), args[11], args[12])
+        return context.make_tuple(builder, signature.return_type, [param, face])
+
+    return sig, codegen
+
+
+def _exit_of_cell_planes_intrinsic(typingctx, planes, neighbours, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol):  # noqa: ARG001
+    """The search on one cell's planes (K, 4) and neighbours (K,) for 4 < K <= 8 faces (the generic kernel's
+    slab boxes and prisms): two groups of four as in exit_of_cell8, the faces past K masked and their rows read
+    at K - 1 (inside the cell's view), the second group taken only where strictly smaller (the loop's first
+    minimum). K > 8 would leave faces out: the caller checks 4 < K <= 8."""
+    if not _planes_args_ok(planes, neighbours):
+        return None
+    sig = types.Tuple((types.float64, types.int64))(planes, neighbours, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol)
+
+    def codegen(context, builder, signature, args):
+        pty, nty = signature.args[0], signature.args[1]
+        pl = context.make_array(pty)(context, builder, args[0])
+        nbs = context.make_array(nty)(context, builder, args[1])
+        k_faces = builder.extract_value(pl.shape, 0)
+        results = []
+        for base in (0, 4):
+            faces, unused = _planes_group(context, builder, pty, pl, nty, nbs, base, k_faces)
+            results.append(_tet_exit(builder, faces, unused, list(args[2:11]), args[11], args[12], base))
+        (pa, fa), (pb, fb) = results
+        better = builder.fcmp_ordered("<", pb, pa)
+        param = builder.select(better, pb, pa)
+        face = builder.select(better, fb, fa)
         return context.make_tuple(builder, signature.return_type, [param, face])
 
     return sig, codegen
@@ -211,3 +263,4 @@ def _exit_of_cell8_intrinsic(typingctx, rec, cell, g0, g1, g2, p0, p1, p2, x0, x
 exit_of_tet: Any = intrinsic(_exit_of_tet_intrinsic)
 exit_of_cell8: Any = intrinsic(_exit_of_cell8_intrinsic)
 exit_of_tet_planes: Any = intrinsic(_exit_of_tet_planes_intrinsic)
+exit_of_cell_planes: Any = intrinsic(_exit_of_cell_planes_intrinsic)

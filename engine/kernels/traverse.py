@@ -78,7 +78,7 @@ from bentray.engine.constants import (
 )
 from bentray.engine.kernels import beams, curves, field, paraxial
 from bentray.engine.kernels.borrow import borrow, held_until_here
-from bentray.engine.kernels.face_roots4 import exit_of_tet_planes
+from bentray.engine.kernels.face_roots4 import exit_of_cell_planes, exit_of_tet_planes
 from bentray.engine.kernels.llvm_inline import njit_inline
 from bentray.engine.wind import (
     WIND_NONE,
@@ -473,6 +473,7 @@ def trace_slots(mesh, prm, fld, paths, rays, slots, beam):
             # n-linear, wind)
             parabolic = curve == CURVE_PARABOLIC
             tets = planes.shape[1] == 4
+            cells8 = 4 < planes.shape[1] <= 8  # slab boxes and prisms: two groups of four faces
             want_par = rays.out_par.shape[0] > 0
             deposit_on = beam.grid.mode != beams.BEAM_OFF or beam.pts.xyz.shape[0] > 0
             par_on = (deposit_on or want_par) and cell_start >= 0
@@ -625,8 +626,13 @@ def trace_slots(mesh, prm, fld, paths, rays, slots, beam):
                         paraxial.tangent_derivs(par, d, p_norm, seg)
                         paraxial.plain_terms(par, g, seg)
                 cell_size = size[cell]
-                if parabolic and tets:  # the four faces at once (kernels/face_roots4.py): find_exit's bits
+                if parabolic and tets:  # the faces four at once (kernels/face_roots4.py): find_exit's bits
                     param, face = exit_of_tet_planes(
+                        planes[cell], neighbours[cell], cs[3], cs[4], cs[5], cs[0], cs[1], cs[2], x[0], x[1], x[2],
+                        exclude, ON_FACE_REL * cell_size,
+                    )  # fmt: skip
+                elif parabolic and cells8:
+                    param, face = exit_of_cell_planes(
                         planes[cell], neighbours[cell], cs[3], cs[4], cs[5], cs[0], cs[1], cs[2], x[0], x[1], x[2],
                         exclude, ON_FACE_REL * cell_size,
                     )  # fmt: skip

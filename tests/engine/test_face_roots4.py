@@ -1,6 +1,7 @@
 """The vectorised exit search of a tetrahedron (engine/kernels/face_roots4.py) against the scalar face loops.
 
-Oracles: curves.find_exit (the generic kernel's loop, parabolic curve; no skip) for exit_of_tet_planes, and
+Oracles: curves.find_exit (the generic kernel's loop, parabolic curve; no skip) for exit_of_tet_planes and
+exit_of_cell_planes, and
 lean._exit_search, the face-by-face loop (roots.face_exit_parameter per face, faces with A <= 0 and
 B <= 0 and unused faces skipped, the smallest parameter first on ties) that the lean kernel ran for every
 cell before and still runs for cells that are not tetrahedra. ``exit_of_tet`` must return the same
@@ -21,7 +22,7 @@ from hypothesis import strategies as st
 
 from bentray.engine.constants import CURVE_PARABOLIC, FACE_UNUSED
 from bentray.engine.kernels import curves
-from bentray.engine.kernels.face_roots4 import exit_of_cell8, exit_of_tet, exit_of_tet_planes
+from bentray.engine.kernels.face_roots4 import exit_of_cell8, exit_of_cell_planes, exit_of_tet, exit_of_tet_planes
 from bentray.engine.kernels.lean import _exit_search
 from bentray.engine.mesh.packed import record_width
 
@@ -283,3 +284,59 @@ def test_strided_planes_in_the_generic_form() -> None:
     _both_generic(planes, neighbours, g, p0, x, entry, tol, out_p, out_f)
     _assert_same(out_p, out_f, "exit_of_tet_planes, strided")
     assert (out_f[:, 1] >= 0).mean() > 0.5
+
+
+@nb.njit(cache=False)
+def _both_generic8(planes, neighbours, g, p0, x, entry, tol, out_p, out_f):
+    """exit_of_cell_planes (column 0) and curves.find_exit (column 1) on cell i's planes (n, K, 4), 4 < K <= 8."""
+    cs = np.zeros(12)
+    d = np.zeros(3)
+    for i in range(planes.shape[0]):
+        pv, fv = exit_of_cell_planes(
+            planes[i], neighbours[i], g[i, 0], g[i, 1], g[i, 2], p0[i, 0], p0[i, 1], p0[i, 2], x[i, 0], x[i, 1],
+            x[i, 2], entry[i], tol[i],
+        )  # fmt: skip
+        cs[0:3] = p0[i]
+        cs[3:6] = g[i]
+        fs, ps = curves.find_exit(CURVE_PARABOLIC, cs, x[i], d, planes[i], neighbours[i], entry[i], tol[i], 1.0)
+        out_p[i, 0], out_p[i, 1] = pv, ps
+        out_f[i, 0], out_f[i, 1] = fv, fs
+
+
+@pytest.mark.parametrize("k_faces", [5, 6, 7, 8])
+@pytest.mark.parametrize("strided", [False, True])
+def test_generic_cells_of_five_to_eight_faces(k_faces: int, strided: bool) -> None:
+    """The generic kernel's per-cell (K, 4) views for slab boxes and prisms: two groups of four faces, the rows past
+    K read at K - 1 and masked (the last cell's view ends the array: nothing beyond it may decide), against
+    curves.find_exit on random and special values, ties (a face repeated later), unused faces, every entry face,
+    C-contiguous and strided views."""
+    rng = np.random.default_rng(100 + k_faces + 10 * strided)
+    n = 20_000
+    m = rng.normal(size=(n, k_faces, 3))
+    m /= np.linalg.norm(m, axis=2)[:, :, None]
+    planes = np.empty((n, k_faces, 4))
+    planes[..., :3] = m
+    planes[..., 3] = rng.uniform(0.1, 2.0, size=(n, k_faces))
+    dup = rng.random(n) < 0.1  # a face repeated later: a tie the first must win
+    planes[dup, k_faces - 1] = planes[dup, 0]
+    neighbours = np.tile(np.arange(k_faces, dtype=np.int64), (n, 1))
+    neighbours[rng.random((n, k_faces)) < 0.1] = FACE_UNUSED
+    x = rng.normal(size=(n, 3)) * 0.3
+    p0 = rng.normal(size=(n, 3))
+    g = rng.normal(size=(n, 3)) * rng.choice([0.0, 1e-3, 1.0], size=(n, 1))
+    g[rng.random(n) < 0.3, :2] = 0.0
+    for arr in (planes, x, p0, g):
+        hit = rng.random(arr.shape) < 0.03
+        arr[hit] = rng.choice(SPECIAL, size=int(hit.sum()))
+    if strided:
+        wide = np.full((n, k_faces, 8), np.nan)
+        wide[:, :, :4] = planes
+        planes = wide[:, :, :4]
+        assert not planes.flags.c_contiguous
+    entry = rng.integers(-1, k_faces, size=n).astype(np.int64)
+    tol = rng.choice([0.0, 1e-9, 1e-3], size=n)
+    out_p = np.empty((n, 2))
+    out_f = np.empty((n, 2), dtype=np.int64)
+    _both_generic8(planes, neighbours, g, p0, x, entry, tol, out_p, out_f)
+    _assert_same(out_p, out_f, f"exit_of_cell_planes K={k_faces} strided={strided}")
+    assert (out_f[:, 1] >= 4).any() and (out_f[:, 1] < 4).any() and (out_f[:, 1] == -1).any()
