@@ -45,6 +45,9 @@ KERNELS = ("auto", "generic", "lean")
 # 50 ns; A-LD slabs (0.9 MB): 1 lane 59 ns, 8 lanes without prefetch 49 ns, with 52 ns (2026-12-05; docs/physics.md
 # section 9). `bentray bench --only throughput` times them; every setting gives the same bits.
 LEAN_LANES = 8
+# Rays a thread takes from the lean kernel's shared queue at a time (neighbouring launch directions together;
+# kernels/lean.py: threads share one queue, so none drains its lanes before the last rays are handed out).
+LEAN_CHUNK = 16
 LEAN_CACHED_BYTES = 8 << 20
 
 
@@ -188,16 +191,12 @@ def lean_applies(
     return curve == "parabolic" and plain and not paraxial and not record_reflections
 
 
-def lean_blocks(n: int, threads: int, rays_per_block: int = 256) -> list[tuple[int, int]]:
-    """[lo, hi) ray ranges for the lean kernel's threads: contiguous blocks of about ``rays_per_block`` rays
-    (neighbouring launch directions together), at least one per ray batch, none when n is 0. The blocks are
-    handed to ``threads`` workers in order, so a thread that finishes early takes the next block."""
-    if n <= 0:
-        return []
-    if threads <= 1:
-        return [(0, n)]
-    size = max(1, min(rays_per_block, -(-n // threads)))
-    return [(a, min(a + size, n)) for a in range(0, n, size)]
+def lean_queue(n: int, chunk: int = LEAN_CHUNK) -> tuple[np.ndarray, int, int]:
+    """The lean kernel's ray queue for rays 0..n-1: (taken, n, chunk), taken a (1,) int64 counter at 0 that
+    every thread's kernel call moves by ``chunk`` rays (neighbouring launch directions) per take."""
+    if int(chunk) < 1:
+        raise ValueError(f"chunk must be at least 1, got {chunk!r}")
+    return np.zeros(1, dtype=np.int64), int(n), int(chunk)
 
 
 def trace_lean(
@@ -242,12 +241,13 @@ def trace_lean(
     )
     limits = (float(max_time_s), int(max_reflections), int(max_steps), int(prefetch), int(lanes))
     args = (packed, mesh, float(c_ref), limits, origins, directions, start_cells, rays.out_state, rays.out_counts)
-    blocks = lean_blocks(n, int(numba.get_num_threads()))
-    if len(blocks) <= 1:
-        trace_block_lanes(*args, 0, n)
-    else:  # contiguous blocks of neighbouring rays, one per thread (the kernel releases the GIL)
-        with ThreadPoolExecutor(max_workers=min(len(blocks), int(numba.get_num_threads()))) as pool:
-            list(pool.map(lambda span: trace_block_lanes(*args, span[0], span[1]), blocks))
+    queue = lean_queue(n)
+    threads = max(1, min(int(numba.get_num_threads()), -(-n // LEAN_CHUNK)))
+    if threads <= 1:
+        trace_block_lanes(*args, queue)
+    else:  # one kernel call per thread on the shared queue (the kernel releases the GIL)
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            list(pool.map(lambda _: trace_block_lanes(*args, queue), range(threads)))
     return _trace_result(rays, None, False, False)
 
 

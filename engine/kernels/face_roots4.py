@@ -24,11 +24,13 @@ four results in face order with the scalar loop's strict ``<``. Equivalence of t
   on-face exit) are masks.
 
 Also here: ``exit_of_cell8``, the same for cells of 5 to 8 faces in two passes of four (the faces past K masked;
-the second pass wins only where strictly smaller, the loop's first minimum), and ``exit_of_tet_planes``, the
+the second pass wins only where strictly smaller, the loop's first minimum); ``exit_of_tet_planes``, the
 tetrahedron's search on the generic kernel's per-cell (4, 4) planes and (4,) neighbours (traverse.trace_slots,
-parabolic curve), which has no skip: a face with A <= 0 and B <= 0 gives +inf there too.
+parabolic curve), which has no skip: a face with A <= 0 and B <= 0 gives +inf there too; and
+``exit_of_cell_planes``, the generic kernel's search for cells of 5 to 8 faces (slab boxes, prisms) in two passes
+of four, whose rows past K are read at K - 1 (the per-cell view ends at the cell) and masked.
 
-tests/engine/test_face_roots4.py checks all three against the scalar loops (lean._exit_search, curves.find_exit)
+tests/engine/test_face_roots4.py checks all four against the scalar loops (lean._exit_search, curves.find_exit)
 on random and adversarial inputs (zeros of either sign, nan, inf, subnormal and huge coefficients, points on
 faces, ties, unused faces, strided planes).
 """

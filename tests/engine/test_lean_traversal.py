@@ -17,7 +17,7 @@ import pytest
 
 from bentray.engine.bench.common import sphere_directions
 from bentray.engine.result import TraceResult
-from bentray.engine.tracer import lean_applies, lean_blocks, trace, trace_lean
+from bentray.engine.tracer import lean_applies, lean_queue, trace, trace_lean
 
 FIELDS = ("position", "direction", "time_s", "length_m", "status", "reflections", "crossings", "nudges", "steps")
 
@@ -175,11 +175,46 @@ def test_auto_picks_the_lean_kernel_only_for_the_plain_parabolic_trace() -> None
     assert not lean_applies("parabolic", 0, None, 0, False, True)  # reflection records
 
 
-def test_lean_blocks_cover_every_ray_once_in_order() -> None:
-    for n, threads in ((0, 2), (1, 2), (7, 1), (1000, 2), (1025, 3)):
-        blocks = lean_blocks(n, threads)
-        flat = [i for lo, hi in blocks for i in range(lo, hi)]
-        assert flat == list(range(n))
+@pytest.mark.parametrize("chunk", [1, 3, 16])
+def test_threads_sharing_one_queue_trace_every_ray_once(slabs, chunk: int) -> None:
+    """Three threads run the kernel on one queue (the atomic counter hands out ``chunk`` rays per take): the
+    outputs equal one thread's, bit for bit, every ray of the range traced once, none outside it touched."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from bentray.engine.constants import COUNT_SIZE, STATE_SIZE
+    from bentray.engine.kernels.lean import trace_block_lanes
+    from bentray.engine.mesh.packed import packed_cells
+
+    sc = slabs
+    n = sc.origins.shape[0]
+    lo = 37  # the queue starts at taken[0]: rays below it are not the queue's
+    limits = (10.0, 3, 10_000_000, 0, 4)
+
+    def run(threads: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        state = np.full((n, STATE_SIZE), -7.0)
+        counts = np.full((n, COUNT_SIZE), -7, dtype=np.int64)
+        queue = (np.array([lo], dtype=np.int64), n, chunk)
+        args = (packed_cells(sc.mesh), sc.mesh, 340.0, limits, sc.origins, sc.directions, sc.start_cells, state, counts)
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            list(pool.map(lambda _: trace_block_lanes(*args, queue), range(threads)))
+        return state, counts, queue[0]
+
+    one_state, one_counts, taken = run(1)
+    assert taken[0] >= n
+    assert (one_state[:lo] == -7.0).all() and (one_counts[:lo] == -7).all()
+    assert (one_counts[lo:] >= 0).all() and one_counts[lo:].sum() > 0
+    for _ in range(3):  # interleavings differ from run to run; every one must give the same outputs
+        state, counts, taken = run(3)
+        assert taken[0] >= n
+        np.testing.assert_array_equal(state, one_state)
+        np.testing.assert_array_equal(counts, one_counts)
+
+
+def test_lean_queue_refuses_an_empty_chunk() -> None:
+    with pytest.raises(ValueError, match="chunk must be at least 1"):
+        lean_queue(10, chunk=0)
+    taken, hi, chunk = lean_queue(10)
+    assert taken.tolist() == [0] and hi == 10 and chunk >= 1
 
 
 def test_kernel_lean_refuses_what_it_cannot_trace(slabs) -> None:
