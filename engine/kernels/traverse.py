@@ -160,7 +160,11 @@ def _slowness_at(curve, c_ref, media_ref, ref_point, gradient, cell, x, wind_cod
     """1/c (s/m) of the medium the ray sees at x: the cell's model, plus the wind along e when on."""
     m = _media_at(media_ref, ref_point, gradient, cell, x)
     if wind_code != WIND_NONE:
-        m = effective_quantity(curve, c_ref, m, gradient[cell], wind_code, wind_params, x, e, w_grad, g_eff)
+        # values, as the per-crossing calls pass them: the wind's helpers compile for tuples only
+        g = (gradient[cell, 0], gradient[cell, 1], gradient[cell, 2])
+        xv = (x[0], x[1], x[2])
+        ev = (e[0], e[1], e[2])
+        m = effective_quantity(curve, c_ref, m, g, wind_code, wind_values(wind_params), xv, ev, w_grad, g_eff)
     return curves.slowness(curve, m, c_ref)
 
 
@@ -496,8 +500,9 @@ def trace_slots(mesh, prm, fld, paths, rays, slots, beam):
             if par_on:
                 m_start = _media_at(media_ref, ref_point, gradient, cell, x)
                 if wind_on:
+                    g_start = (gradient[cell, 0], gradient[cell, 1], gradient[cell, 2])
                     m_start = effective_quantity(
-                        curve, c_ref, m_start, gradient[cell], ray_wind, wind_params, x, e_wind, w_grad, g_eff
+                        curve, c_ref, m_start, g_start, ray_wind, wp, (x[0], x[1], x[2]), ew, w_grad, g_eff
                     )
                 if m_start > 0.0:
                     p_norm = math.sqrt(m_start) if parabolic else paraxial.refractive_index(curve, m_start, c_ref)
@@ -575,7 +580,9 @@ def trace_slots(mesh, prm, fld, paths, rays, slots, beam):
                         )
                     for i in range(3):
                         g[i] = g_eff[i]
-                exclude = entry
+                # int64, never Literal[int](-1) (entry starts as -1): a literal first type would compile the exit
+                # search's callee once more
+                exclude = np.int64(entry)
                 if slide_face >= 0:
                     # slide along the face: the mean gradient of the two sides without its normal part
                     nb_cell = neighbours[cell, slide_face]
@@ -590,7 +597,7 @@ def trace_slots(mesh, prm, fld, paths, rays, slots, beam):
                     )
                     for i in range(3):
                         g[i] = g_slide[i] - gm * planes[cell, slide_face, i]
-                    exclude = slide_face
+                    exclude = np.int64(slide_face)
                     slide_face = -1
                 if not curves.setup(curve, m0, g, d, cs):
                     status = STATUS_LOST
