@@ -181,51 +181,49 @@ def _planes_args_ok(planes: Any, neighbours: Any) -> bool:
     return ok_planes and ok_nb
 
 
-def _exit_of_tet_planes_intrinsic(typingctx, planes, neighbours, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol):  # noqa: ARG001
-    """The same search on one cell's planes (4, 4) float64 and neighbours (4,) int64 (the generic kernel's per-cell
-    views; any layout, C-contiguous rows read as vector loads), without the lean loop's skip changing
-    anything (A <= 0, B <= 0 give +inf)."""
-    if not _planes_args_ok(planes, neighbours):
-        return None
-    sig = types.Tuple((types.float64, types.int64))(planes, neighbours, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol)
-
-    def codegen(context, builder, signature, args):
-        pty, nty = signature.args[0], signature.args[1]
-        pl = context.make_array(pty)(context, builder, args[0])
-        nbs = context.make_array(nty)(context, builder, args[1])
-        four = context.get_constant(types.intp, 4)
-        faces, unused = _planes_group(context, builder, pty, pl, nty, nbs, 0, four)
-        param, face = _tet_exit(builder, faces, unused, list(args[2:11]), args[11], args[12])
-        return context.make_tuple(builder, signature.return_type, [param, face])
-
-    return sig, codegen
+def _first_of_groups(builder: Any, results: list[tuple[Any, Any]]) -> tuple[Any, Any]:
+    """(parameter, face) over groups of four faces taken in order: a later group wins only where strictly
+    smaller (the scalar loop's first minimum)."""
+    param, face = results[0]
+    for p_next, f_next in results[1:]:
+        better = builder.fcmp_ordered("<", p_next, param)
+        param = builder.select(better, p_next, param)
+        face = builder.select(better, f_next, face)
+    return param, face
 
 
-def _exit_of_cell_planes_intrinsic(typingctx, planes, neighbours, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol):  # noqa: ARG001
-    """The search on one cell's planes (K, 4) and neighbours (K,) for 4 < K <= 8 faces (the generic kernel's
-    slab boxes and prisms): two groups of four as in exit_of_cell8, the faces past K masked and their rows read
-    at K - 1 (inside the cell's view), the second group taken only where strictly smaller (the loop's first
-    minimum). K > 8 would leave faces out: the caller checks 4 < K <= 8."""
-    if not _planes_args_ok(planes, neighbours):
-        return None
-    sig = types.Tuple((types.float64, types.int64))(planes, neighbours, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol)
+def _planes_exit_typing(groups: int, name: str) -> Any:
+    """The typing function of a search on one cell's planes (K, 4) float64 and neighbours (K,) int64 (the generic
+    kernel's per-cell views, any layout) in ``groups`` groups of four faces: 1 for a tetrahedron (K = 4), 2 for
+    4 < K <= 8 (K from the view's shape; rows past K read at K - 1 and masked). Neither has the lean loop's
+    skip, which changes nothing (A <= 0, B <= 0 give +inf)."""
 
-    def codegen(context, builder, signature, args):
-        pty, nty = signature.args[0], signature.args[1]
-        pl = context.make_array(pty)(context, builder, args[0])
-        nbs = context.make_array(nty)(context, builder, args[1])
-        k_faces = builder.extract_value(pl.shape, 0)
-        results = []
-        for base in (0, 4):
-            faces, unused = _planes_group(context, builder, pty, pl, nty, nbs, base, k_faces)
-            results.append(_tet_exit(builder, faces, unused, list(args[2:11]), args[11], args[12], base))
-        (pa, fa), (pb, fb) = results
-        better = builder.fcmp_ordered("<", pb, pa)
-        param = builder.select(better, pb, pa)
-        face = builder.select(better, fb, fa)
-        return context.make_tuple(builder, signature.return_type, [param, face])
+    def typing(typingctx, planes, neighbours, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol):  # noqa: ARG001
+        if not _planes_args_ok(planes, neighbours):
+            return None
+        sig = types.Tuple((types.float64, types.int64))(
+            planes, neighbours, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol
+        )
 
-    return sig, codegen
+        def codegen(context, builder, signature, args):
+            pty, nty = signature.args[0], signature.args[1]
+            pl = context.make_array(pty)(context, builder, args[0])
+            nbs = context.make_array(nty)(context, builder, args[1])
+            if groups == 1:
+                k_faces = context.get_constant(types.intp, 4)
+            else:
+                k_faces = builder.extract_value(pl.shape, 0)
+            results = []
+            for base in range(0, 4 * groups, 4):
+                faces, unused = _planes_group(context, builder, pty, pl, nty, nbs, base, k_faces)
+                results.append(_tet_exit(builder, faces, unused, list(args[2:11]), args[11], args[12], base))
+            param, face = _first_of_groups(builder, results)
+            return context.make_tuple(builder, signature.return_type, [param, face])
+
+        return sig, codegen
+
+    typing.__name__ = typing.__qualname__ = name
+    return typing
 
 
 def _exit_of_cell8_intrinsic(typingctx, rec, cell, g0, g1, g2, p0, p1, p2, x0, x1, x2, entry, tol, o_nb, k_faces):  # noqa: ARG001
@@ -253,10 +251,7 @@ def _exit_of_cell8_intrinsic(typingctx, rec, cell, g0, g1, g2, p0, p1, p2, x0, x
             )
             faces = _rows(builder, builder.gep(row, [ir.Constant(I64, 4 * base)]))
             results.append(_tet_exit(builder, faces, unused, list(args[2:11]), args[11], args[12], base))
-        (pa, fa), (pb, fb) = results
-        better = builder.fcmp_ordered("<", pb, pa)
-        param = builder.select(better, pb, pa)
-        face = builder.select(better, fb, fa)
+        param, face = _first_of_groups(builder, results)
         return context.make_tuple(builder, signature.return_type, [param, face])
 
     return sig, codegen
@@ -264,5 +259,7 @@ def _exit_of_cell8_intrinsic(typingctx, rec, cell, g0, g1, g2, p0, p1, p2, x0, x
 
 exit_of_tet: Any = intrinsic(_exit_of_tet_intrinsic)
 exit_of_cell8: Any = intrinsic(_exit_of_cell8_intrinsic)
-exit_of_tet_planes: Any = intrinsic(_exit_of_tet_planes_intrinsic)
-exit_of_cell_planes: Any = intrinsic(_exit_of_cell_planes_intrinsic)
+# (parameter, face) of a tetrahedron's search on its planes (4, 4) and neighbours (4,), and of a cell of 4 < K <= 8
+# faces on its (K, 4) and (K,) (the caller checks K <= 8: faces past 8 would be left out)
+exit_of_tet_planes: Any = intrinsic(_planes_exit_typing(1, "exit_of_tet_planes"))
+exit_of_cell_planes: Any = intrinsic(_planes_exit_typing(2, "exit_of_cell_planes"))

@@ -60,21 +60,30 @@ def _both(rec, g, p0, x, entry, tol, out_p, out_f):
         out_f[i, 0], out_f[i, 1] = fv, fs
 
 
-@nb.njit(cache=False)
-def _both_generic(planes, neighbours, g, p0, x, entry, tol, out_p, out_f):
-    """exit_of_tet_planes (column 0) and curves.find_exit (column 1) on cell i's planes (n, 4, 4)."""
-    cs = np.zeros(12)
-    d = np.zeros(3)
-    for i in range(planes.shape[0]):
-        pv, fv = exit_of_tet_planes(
-            planes[i], neighbours[i], g[i, 0], g[i, 1], g[i, 2], p0[i, 0], p0[i, 1], p0[i, 2], x[i, 0], x[i, 1],
-            x[i, 2], entry[i], tol[i],
-        )  # fmt: skip
-        cs[0:3] = p0[i]
-        cs[3:6] = g[i]
-        fs, ps = curves.find_exit(CURVE_PARABOLIC, cs, x[i], d, planes[i], neighbours[i], entry[i], tol[i], 1.0)
-        out_p[i, 0], out_p[i, 1] = pv, ps
-        out_f[i, 0], out_f[i, 1] = fv, fs
+def _generic_pair(search):
+    """An njit helper: ``search`` (exit_of_tet_planes or exit_of_cell_planes, column 0) and curves.find_exit (column
+    1) on cell i's planes (n, K, 4) and neighbours (n, K)."""
+
+    @nb.njit(cache=False)
+    def both(planes, neighbours, g, p0, x, entry, tol, out_p, out_f):
+        cs = np.zeros(12)
+        d = np.zeros(3)
+        for i in range(planes.shape[0]):
+            pv, fv = search(
+                planes[i], neighbours[i], g[i, 0], g[i, 1], g[i, 2], p0[i, 0], p0[i, 1], p0[i, 2], x[i, 0], x[i, 1],
+                x[i, 2], entry[i], tol[i],
+            )  # fmt: skip
+            cs[0:3] = p0[i]
+            cs[3:6] = g[i]
+            fs, ps = curves.find_exit(CURVE_PARABOLIC, cs, x[i], d, planes[i], neighbours[i], entry[i], tol[i], 1.0)
+            out_p[i, 0], out_p[i, 1] = pv, ps
+            out_f[i, 0], out_f[i, 1] = fv, fs
+
+    return both
+
+
+_both_generic = _generic_pair(exit_of_tet_planes)
+_both_generic8 = _generic_pair(exit_of_cell_planes)
 
 
 def _records(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
@@ -102,11 +111,15 @@ def _compare(rec, g, p0, x, entry, tol) -> tuple[np.ndarray, np.ndarray]:
     entry = entry.astype(np.int64)
     planes = np.ascontiguousarray(rec[:, :16].reshape(n, 4, 4))
     neighbours = np.ascontiguousarray(rec[:, O_NB : O_NB + K].astype(np.int64))
-    for kernel, args in ((_both, (np.ascontiguousarray(rec),)), (_both_generic, (planes, neighbours))):
+    pairs = (
+        ("exit_of_tet", _both, (np.ascontiguousarray(rec),)),
+        ("exit_of_tet_planes", _both_generic, (planes, neighbours)),
+    )
+    for name, kernel, args in pairs:
         out_p = np.empty((n, 2))
         out_f = np.empty((n, 2), dtype=np.int64)
         kernel(*args, g, p0, x, entry, tol, out_p, out_f)
-        _assert_same(out_p, out_f, kernel.__name__)
+        _assert_same(out_p, out_f, name)
     return out_p[:, 1], out_f[:, 1]
 
 
@@ -284,23 +297,6 @@ def test_strided_planes_in_the_generic_form() -> None:
     _both_generic(planes, neighbours, g, p0, x, entry, tol, out_p, out_f)
     _assert_same(out_p, out_f, "exit_of_tet_planes, strided")
     assert (out_f[:, 1] >= 0).mean() > 0.5
-
-
-@nb.njit(cache=False)
-def _both_generic8(planes, neighbours, g, p0, x, entry, tol, out_p, out_f):
-    """exit_of_cell_planes (column 0) and curves.find_exit (column 1) on cell i's planes (n, K, 4), 4 < K <= 8."""
-    cs = np.zeros(12)
-    d = np.zeros(3)
-    for i in range(planes.shape[0]):
-        pv, fv = exit_of_cell_planes(
-            planes[i], neighbours[i], g[i, 0], g[i, 1], g[i, 2], p0[i, 0], p0[i, 1], p0[i, 2], x[i, 0], x[i, 1],
-            x[i, 2], entry[i], tol[i],
-        )  # fmt: skip
-        cs[0:3] = p0[i]
-        cs[3:6] = g[i]
-        fs, ps = curves.find_exit(CURVE_PARABOLIC, cs, x[i], d, planes[i], neighbours[i], entry[i], tol[i], 1.0)
-        out_p[i, 0], out_p[i, 1] = pv, ps
-        out_f[i, 0], out_f[i, 1] = fv, fs
 
 
 @pytest.mark.parametrize("k_faces", [5, 6, 7, 8])
