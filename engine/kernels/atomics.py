@@ -1,9 +1,12 @@
 """An atomic counter for compiled kernels that share work across threads (kernels/lean.py's ray queue).
 
 ``fetch_add(counter, value)`` adds ``value`` to ``counter[0]`` (an int64 array of at least one element) as one
-atomic read-modify-write (LLVM ``atomicrmw add``, sequentially consistent) and returns the value before the
+atomic read-modify-write (LLVM ``atomicrmw add``; x86's ``lock xadd``) and returns the value before the
 addition. Threads that call it on the same array each get a distinct range [old, old + value): no ray is taken
-twice and none is skipped, whatever the interleaving (tests/engine/test_lean_traversal.py).
+twice and none is skipped, whatever the interleaving (tests/engine/test_lean_traversal.py). The ordering is
+``monotonic`` (relaxed): the counter's own updates are atomic and totally ordered, which is all a work queue
+needs; the counter publishes no other data (each ray's outputs are read only after the threads are joined),
+so no fence is asked for around it.
 """
 
 from __future__ import annotations
