@@ -622,9 +622,12 @@ def trace_block_lanes(packed, mesh, c_ref, limits, origins, directions, cells, o
             ok = ok and t + dt < max_time and ds > TINY_STEP_REL * sz and nxt >= 0
             ok = ok and math.isfinite(xn_[0]) and math.isfinite(xn_[1]) and math.isfinite(xn_[2])
             if ok:
-                pf = 4 * face
-                dm = dn_[0] * rec[cell, pf] + dn_[1] * rec[cell, pf + 1] + dn_[2] * rec[cell, pf + 2]
-                pp = ist[lane, _I_PP] + 1 if (nxt == ist[lane, _I_PREV] and abs(dm) <= SLIDE_COS) else 0
+                pp = 0
+                if nxt == ist[lane, _I_PREV]:  # back into the cell it came from: grazing along the face?
+                    pf = 4 * face
+                    dm = dn_[0] * rec[cell, pf] + dn_[1] * rec[cell, pf + 1] + dn_[2] * rec[cell, pf + 2]
+                    if abs(dm) <= SLIDE_COS:
+                        pp = ist[lane, _I_PP] + 1
                 ok = pp < PINGPONG_SLIDE
             if ok:
                 for i in range(3):
